@@ -1,0 +1,1 @@
+"""Virtual-coupling controllers: pure Python, no libsumo (see :mod:`vcsumo.control.base`)."""

@@ -1,0 +1,31 @@
+"""Errors raised to the user.
+
+Every problem the user can fix (a malformed file, an unknown name, an infeasible timetable, a
+SUMO failure) is raised as :class:`VcsumoError` with one message naming the file and the field.
+The CLI prints that message and exits with status 2; it never prints a traceback for them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class VcsumoError(Exception):
+    """A problem the user can fix, with a message that names the file and the field."""
+
+
+class InputError(VcsumoError):
+    """A malformed or inconsistent input file (line, timetable, rolling stock, study, controller)."""
+
+    def __init__(self, path: str | Path | None, field: str | None, message: str):
+        self.path = None if path is None else str(path)
+        self.field = field
+        self.message = message
+        where = self.path or "<input>"
+        if field:
+            where += f": {field}"
+        super().__init__(f"{where}: {message}")
+
+
+class SumoError(VcsumoError):
+    """netconvert or SUMO failed; the message carries SUMO's own error lines."""

@@ -1,0 +1,155 @@
+"""Network builder: line file → plain XML → netconvert → SUMO network (cached).
+
+Writes ``line.nod.xml`` (nodes with z, ``rail_signal`` at every signal), ``line.edg.xml`` (one edge
+per piece of track, explicit ``length`` and kilometrage ``distance``), ``line.con.xml`` (every
+connection, with the diverging speed through turnouts) and ``stations.add.xml`` (a ``trainStop``
+per platform and track), then runs netconvert from the ``eclipse-sumo`` wheel.
+
+Builds are cached in ``build/<fingerprint>/`` beside the line file; the fingerprint covers the
+line file's bytes, the block-length override, the builder version and the SUMO version, so a
+changed line file is rebuilt and an unchanged one is not.  A build goes into a temporary folder
+first and is renamed into place, so concurrent runs never see half a network.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from vcsumo.errors import SumoError
+from vcsumo.line import Line
+from vcsumo.sumo_paths import sumo_binary, sumo_version
+from vcsumo.topology import Topology, build_topology
+
+BUILDER_VERSION = "3"
+
+
+@dataclass(frozen=True)
+class BuiltNetwork:
+    """Paths of a built network plus the topology it came from."""
+
+    topology: Topology
+    net_file: Path
+    stations_file: Path
+    folder: Path
+    fingerprint: str
+
+
+def fingerprint(line: Line, block_length_m: float | None) -> str:
+    h = hashlib.sha256()
+    h.update(line.path.read_bytes())
+    h.update(f"|block={block_length_m}|builder={BUILDER_VERSION}|sumo={sumo_version()}".encode())
+    return h.hexdigest()[:16]
+
+
+def _build_root(line: Line) -> Path:
+    root = line.path.parent / "build"
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        probe = root / ".write-test"
+        probe.touch()
+        probe.unlink()
+        return root
+    except OSError:
+        cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vcsumo" / line.name
+        cache.mkdir(parents=True, exist_ok=True)
+        return cache
+
+
+def build_network(line: Line, block_length_m: float | None = None, force: bool = False) -> BuiltNetwork:
+    """Build (or reuse) the SUMO network of a line."""
+    topo = build_topology(line, block_length_m)
+    fp = fingerprint(line, block_length_m)
+    root = _build_root(line)
+    folder = root / fp
+    net_file = folder / "line.net.xml"
+    stations_file = folder / "stations.add.xml"
+    if folder.is_dir() and net_file.is_file() and stations_file.is_file() and not force:
+        return BuiltNetwork(topo, net_file, stations_file, folder, fp)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{fp}-", dir=root))
+    try:
+        write_plain_xml(topo, tmp)
+        cmd = [
+            sumo_binary("netconvert"),
+            "-n", str(tmp / "line.nod.xml"), "-e", str(tmp / "line.edg.xml"), "-x", str(tmp / "line.con.xml"),
+            "-o", str(tmp / "line.net.xml"), "--no-turnarounds", "true", "--offset.disable-normalization", "true",
+            "--geometry.min-dist", "0", "--junctions.corner-detail", "0", "--no-warnings", "true",
+        ]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0 or not (tmp / "line.net.xml").is_file():
+            errors = [ln for ln in (proc.stderr + proc.stdout).splitlines() if "rror" in ln] or (proc.stderr or proc.stdout).splitlines()[-5:]
+            raise SumoError(f"{line.path}: netconvert failed building the network: " + " | ".join(errors))
+        (tmp / "build.json").write_text(json.dumps({"line": str(line.path), "block_length_m": block_length_m, "fingerprint": fp, "sumo": sumo_version()}, indent=1))
+        if folder.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+        try:
+            os.replace(tmp, folder)
+        except OSError:
+            # another process finished the same build first
+            shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return BuiltNetwork(topo, net_file, stations_file, folder, fp)
+
+
+def write_plain_xml(topo: Topology, folder: Path) -> None:
+    """Write the plain-XML inputs of netconvert and the stations additional file."""
+    folder.mkdir(parents=True, exist_ok=True)
+    first_nodes = {tr.edges and topo.edges[tr.edges[0]].from_node for tr in topo.tracks.values()}
+    nod = ["<nodes>"]
+    for n in topo.nodes.values():
+        kind = "rail_signal" if n.signal and n.id not in first_nodes else "priority"
+        nod.append(f'  <node id="{n.id}" x="{n.x:.3f}" y="{n.y:.3f}" z="{n.z:.4f}" type="{kind}"/>')
+    nod.append("</nodes>")
+    (folder / "line.nod.xml").write_text("\n".join(nod) + "\n")
+
+    line_start = topo.line.data.km_start
+    edg = ["<edges>"]
+    for e in topo.edges.values():
+        spread = ' spreadType="center"' if e.bidi else ""
+        # SUMO kilometrage: metres from the line start, negative when it decreases along the edge
+        dist_attr = ""
+        if e.section == "main":
+            dist = (e.km_from - line_start) * 1000.0
+            signed = dist if e.km_to > e.km_from else -dist
+            if abs(signed) > 0:
+                dist_attr = f' distance="{signed:.3f}"'
+        head = (
+            f'  <edge id="{e.id}" from="{e.from_node}" to="{e.to_node}" numLanes="1" speed="{e.speed_ms:.4f}" '
+            f'length="{e.length_m:.3f}" allow="rail rail_fast rail_electric" priority="1"{dist_attr}{spread}'
+        )
+        if e.tunnel:
+            edg.append(head + ">")
+            edg.append(f'    <param key="tunnel" value={quoteattr(e.tunnel)}/>')
+            edg.append(f'    <param key="tunnel_factor" value="{e.tunnel_factor}"/>')
+            edg.append("  </edge>")
+        else:
+            edg.append(head + "/>")
+    edg.append("</edges>")
+    (folder / "line.edg.xml").write_text("\n".join(edg) + "\n")
+
+    con = ["<connections>"]
+    for eid, nxt in topo.successors.items():
+        for n in nxt:
+            sp = topo.turnout_speed_ms.get((eid, n))
+            sp_attr = f' speed="{sp:.4f}"' if sp is not None else ""
+            con.append(f'  <connection from="{eid}" to="{n}" fromLane="0" toLane="0"{sp_attr}/>')
+    con.append("</connections>")
+    (folder / "line.con.xml").write_text("\n".join(con) + "\n")
+
+    add = ["<additional>"]
+    for p in topo.platforms.values():
+        add.append(
+            f'  <trainStop id="{p.id}" lane="{p.edge}_0" startPos="{p.start_pos_m:.3f}" endPos="{p.end_pos_m:.3f}" '
+            f'name={quoteattr(p.station_name)} friendlyPos="true"/>'
+        )
+    add.append("</additional>")
+    (folder / "stations.add.xml").write_text("\n".join(add) + "\n")

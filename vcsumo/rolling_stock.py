@@ -1,0 +1,186 @@
+"""Rolling stock: one definition per train type, feeding both SUMO and vcsumo's own model.
+
+A rolling-stock file (``networks/rolling_stock/<name>.yaml``) holds the physical parameters of a
+train in SI units.  From it come
+
+* :meth:`RollingStock.vtype_xml` — the SUMO vType (``carFollowModel="Rail"``,
+  ``trainType="custom"``): mass, rotating-mass factor, power, traction, Davis resistance,
+  service and emergency deceleration;
+* :meth:`RollingStock.params` — the :class:`~vcsumo.dynamics.TrainParams` of the train-dynamics
+  model (Felez et al. eq. 1–5; Terlizzi et al. eq. 5–6) used by the controllers, the safety
+  supervisor and the offline running-time calculation;
+* :meth:`RollingStock.uncertainty_box` — the parameter intervals of Terlizzi et al. eq. 7 used by
+  the robust proxies.
+
+so the plant and the prediction model cannot drift apart silently.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from pydantic import Field, model_validator
+
+from vcsumo.config import StrictModel, load_model
+from vcsumo.dynamics import TrainParams
+from vcsumo.errors import InputError
+from vcsumo.line import project_root
+from vcsumo.units import kmh_to_ms
+
+
+class Interval(StrictModel):
+    """A closed interval [low, high]."""
+
+    low: float
+    high: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "Interval":
+        if self.high < self.low:
+            raise ValueError(f"interval high ({self.high}) is below low ({self.low})")
+        return self
+
+
+class UncertaintyBox(StrictModel):
+    """Parameter intervals (Terlizzi et al. eq. 7).  Each must contain the nominal value."""
+
+    mass_kg: Interval
+    davis_a_n: Interval
+    davis_b_n_per_mps: Interval
+    davis_c_n_per_mps2: Interval
+    max_accel_mps2: Interval = Field(description="a_dr interval, m/s² (traction force limit / mass)")
+    service_brake_decel_mps2: Interval = Field(description="a_br interval, m/s²")
+    max_power_w: Interval = Field(description="P_dr interval, W")
+    max_brake_power_w: Interval | None = Field(default=None, description="P_br interval, W")
+
+
+class RollingStock(StrictModel):
+    """A train type.  All fields SI; the unit is in every field name."""
+
+    name: str = Field(pattern=r"^[a-z0-9_]+$", description="Identifier (file name without .yaml)")
+    title: str = Field(default="", description="Human-readable name")
+    notes: str = Field(default="", description="Assumptions and caveats")
+    sources: dict[str, str] = Field(default_factory=dict, description="Source key -> citation")
+    length_m: float = Field(gt=0, le=1500, description="Train length L, m")
+    mass_kg: float = Field(gt=0, description="Mass M, kg")
+    rotating_mass_factor: float = Field(default=1.0, ge=1.0, le=1.5, description="Rotating-mass (inertia) factor, -")
+    max_speed_kmh: float = Field(gt=0, le=600, description="Maximum speed of the train, km/h")
+    max_traction_n: float = Field(gt=0, description="Maximum tractive effort F_max = M·a_dr, N (eq. 4a)")
+    max_power_w: float = Field(gt=0, description="Maximum traction power P_dr, W (eq. 4b)")
+    davis_a_n: float = Field(ge=0, description="Davis A (rolling + bearing resistance), N")
+    davis_b_n_per_mps: float = Field(ge=0, description="Davis B, N/(m/s)")
+    davis_c_n_per_mps2: float = Field(ge=0, description="Davis C (aerodynamic, open air), N/(m/s)²")
+    service_brake_decel_mps2: float = Field(gt=0, le=3, description="Service braking deceleration a_br, m/s²: braking-force limit M·a_br and the planning deceleration of SUMO and of blocking-time theory")
+    emergency_brake_decel_mps2: float = Field(gt=0, le=5, description="Emergency braking deceleration, m/s²")
+    max_brake_power_w: float | None = Field(default=None, gt=0, description="Maximum braking power P_br, W (eq. 4b); none = not limited")
+    max_jerk_mps3: float | None = Field(default=None, gt=0, description="Maximum jerk j_max, m/s³ (eq. 4c); none = not limited")
+    traction_lag_s: float = Field(default=0.0, ge=0, le=5, description="First-order lag τ of the traction/brake force, s (eq. 1c)")
+    uncertainty: UncertaintyBox | None = Field(default=None, description="Parameter intervals (Terlizzi eq. 7)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "RollingStock":
+        if self.emergency_brake_decel_mps2 < self.service_brake_decel_mps2:
+            raise ValueError("emergency_brake_decel_mps2 must not be below service_brake_decel_mps2")
+        box = self.uncertainty
+        if box is not None:
+            nominal = {
+                "mass_kg": self.mass_kg,
+                "davis_a_n": self.davis_a_n,
+                "davis_b_n_per_mps": self.davis_b_n_per_mps,
+                "davis_c_n_per_mps2": self.davis_c_n_per_mps2,
+                "max_accel_mps2": self.max_traction_n / self.mass_kg,
+                "service_brake_decel_mps2": self.service_brake_decel_mps2,
+                "max_power_w": self.max_power_w,
+            }
+            for key, value in nominal.items():
+                iv: Interval = getattr(box, key)
+                if not iv.low - 1e-9 * max(1.0, abs(value)) <= value <= iv.high + 1e-9 * max(1.0, abs(value)):
+                    raise ValueError(f"uncertainty.{key} [{iv.low}, {iv.high}] does not contain the nominal value {value:g}")
+        return self
+
+    # ---------------------------------------------------------------------------------------
+    @property
+    def max_speed_ms(self) -> float:
+        return kmh_to_ms(self.max_speed_kmh)
+
+    def params(self) -> TrainParams:
+        """The nominal parameters of the train-dynamics model (SI)."""
+        return TrainParams(
+            length_m=self.length_m,
+            mass_kg=self.mass_kg,
+            rotating_mass_factor=self.rotating_mass_factor,
+            max_speed_ms=self.max_speed_ms,
+            max_traction_n=self.max_traction_n,
+            max_power_w=self.max_power_w,
+            davis_a_n=self.davis_a_n,
+            davis_b_n_per_mps=self.davis_b_n_per_mps,
+            davis_c_n_per_mps2=self.davis_c_n_per_mps2,
+            service_brake_decel_mps2=self.service_brake_decel_mps2,
+            emergency_brake_decel_mps2=self.emergency_brake_decel_mps2,
+            max_brake_power_w=self.max_brake_power_w if self.max_brake_power_w is not None else math.inf,
+            max_jerk_mps3=self.max_jerk_mps3 if self.max_jerk_mps3 is not None else math.inf,
+            traction_lag_s=self.traction_lag_s,
+        )
+
+    def uncertainty_box(self) -> UncertaintyBox:
+        """The eq. 7 intervals; a train without them is treated as exactly known."""
+        if self.uncertainty is not None:
+            return self.uncertainty
+
+        def point(v: float) -> Interval:
+            return Interval(low=v, high=v)
+
+        return UncertaintyBox(
+            mass_kg=point(self.mass_kg),
+            davis_a_n=point(self.davis_a_n),
+            davis_b_n_per_mps=point(self.davis_b_n_per_mps),
+            davis_c_n_per_mps2=point(self.davis_c_n_per_mps2),
+            max_accel_mps2=point(self.max_traction_n / self.mass_kg),
+            service_brake_decel_mps2=point(self.service_brake_decel_mps2),
+            max_power_w=point(self.max_power_w),
+            max_brake_power_w=None if self.max_brake_power_w is None else point(self.max_brake_power_w),
+        )
+
+    def vtype_id(self, tunnel_factor: float = 1.0) -> str:
+        """SUMO vType id; tunnels use a variant with the aerodynamic term scaled (see vtype_xml)."""
+        return self.name if abs(tunnel_factor - 1.0) < 1e-9 else f"{self.name}@tf{tunnel_factor:.2f}"
+
+    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail") -> str:
+        """The SUMO vType element (Rail model, custom train type).
+
+        SUMO's units: maxPower kW, maxTraction kN, resCoef_* kN, kN/(m/s), kN/(m/s)²; mass kg.
+        SUMO plans braking with ``decel`` and may brake up to ``decel + R(v)/(M·mf)``; see the
+        README (physics) for the gaps between SUMO's Rail model and eq. 1–5.
+        """
+        return (
+            f'<vType id="{self.vtype_id(tunnel_factor)}" vClass="{vclass}" carFollowModel="Rail" trainType="custom" '
+            f'length="{self.length_m:.3f}" minGap="5" maxSpeed="{self.max_speed_ms:.4f}" '
+            f'mass="{self.mass_kg:.1f}" massFactor="{self.rotating_mass_factor:.4f}" '
+            f'maxPower="{self.max_power_w / 1000:.4f}" maxTraction="{self.max_traction_n / 1000:.4f}" '
+            f'resCoef_constant="{self.davis_a_n / 1000:.6f}" resCoef_linear="{self.davis_b_n_per_mps / 1000:.8f}" '
+            f'resCoef_quadratic="{tunnel_factor * self.davis_c_n_per_mps2 / 1000:.8f}" '
+            f'decel="{self.service_brake_decel_mps2:.4f}" emergencyDecel="{self.emergency_brake_decel_mps2:.4f}" '
+            f'speedFactor="1" speedDev="0"/>'
+        )
+
+
+def rolling_stock_dir() -> Path:
+    return project_root() / "networks" / "rolling_stock"
+
+
+def shipped_rolling_stock() -> list[str]:
+    return sorted(p.stem for p in rolling_stock_dir().glob("*.yaml"))
+
+
+def load_rolling_stock(spec: str | Path) -> RollingStock:
+    """Load a train type by shipped name (``etr1000``) or by path to a YAML file."""
+    path = Path(spec)
+    if path.suffix not in (".yaml", ".yml"):
+        path = rolling_stock_dir() / f"{spec}.yaml"
+        if not path.is_file():
+            raise InputError(None, "train", f"unknown train '{spec}' (shipped: {', '.join(shipped_rolling_stock())}; or give a path to a .yaml file)")
+    stock = load_model(RollingStock, path)
+    if path.parent.resolve() == rolling_stock_dir().resolve() and stock.name != path.stem:
+        raise InputError(path, "name", f"name '{stock.name}' must match the file name '{path.stem}'")
+    return stock

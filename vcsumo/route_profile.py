@@ -1,0 +1,139 @@
+"""A train's route as a one-dimensional profile: speed limits, gradients, tunnels along distance.
+
+Positions ``s`` are metres from the start of the route (the start of its first edge), exactly the
+same metres SUMO uses (edge lengths are written explicitly into the network).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vcsumo.topology import Topology
+
+
+@dataclass
+class RouteProfile:
+    """Speed limit, gradient and tunnel factor along a route of topology edges."""
+
+    edges: list[str]
+    starts_m: np.ndarray
+    lengths_m: np.ndarray
+    speeds_ms: np.ndarray
+    gradients: np.ndarray
+    """Equivalent gradient (gradient + curve resistance), rise/run in the direction of travel."""
+    tunnel_factors: np.ndarray
+    sections: list[str]
+    km_from: np.ndarray
+    km_to: np.ndarray
+    point_limits: list[tuple[float, float]]
+    """(position m, speed m/s) of turnouts: held until the whole train has passed."""
+
+    @property
+    def length_m(self) -> float:
+        return float(self.starts_m[-1] + self.lengths_m[-1])
+
+    @classmethod
+    def from_edges(cls, topo: Topology, edges: list[str]) -> "RouteProfile":
+        starts, lengths, speeds, grads, tfs, secs, k0, k1 = [], [], [], [], [], [], [], []
+        points: list[tuple[float, float]] = []
+        s = 0.0
+        for i, eid in enumerate(edges):
+            e = topo.edges[eid]
+            starts.append(s)
+            lengths.append(e.length_m)
+            speeds.append(e.speed_ms)
+            grads.append(e.equivalent_gradient)
+            tfs.append(e.tunnel_factor)
+            secs.append(e.section)
+            k0.append(e.km_from)
+            k1.append(e.km_to)
+            if i > 0 and (edges[i - 1], eid) in topo.turnout_speed_ms:
+                points.append((s, topo.turnout_speed_ms[(edges[i - 1], eid)]))
+            s += e.length_m
+        return cls(
+            edges=list(edges), starts_m=np.array(starts), lengths_m=np.array(lengths), speeds_ms=np.array(speeds),
+            gradients=np.array(grads), tunnel_factors=np.array(tfs), sections=secs, km_from=np.array(k0),
+            km_to=np.array(k1), point_limits=points,
+        )
+
+    # ---------------------------------------------------------------------------------------
+    def index_at(self, s: float) -> int:
+        """Index of the edge containing position s (the later edge at a boundary)."""
+        i = int(np.searchsorted(self.starts_m, s, side="right")) - 1
+        return min(max(i, 0), len(self.edges) - 1)
+
+    def km_at(self, s: float) -> tuple[str, float]:
+        """(section, chainage km) of route position s."""
+        i = self.index_at(s)
+        pos = s - self.starts_m[i]
+        sign = 1.0 if self.km_to[i] >= self.km_from[i] else -1.0
+        return self.sections[i], float(self.km_from[i] + sign * pos / 1000.0)
+
+    def s_of(self, section: str, km: float) -> float:
+        """Route position of a section chainage (first pass), m; raises KeyError if not on the route."""
+        for i in range(len(self.edges)):
+            if self.sections[i] != section:
+                continue
+            lo, hi = sorted((self.km_from[i], self.km_to[i]))
+            if lo - 1e-6 <= km <= hi + 1e-6:
+                return float(self.starts_m[i] + abs(km - self.km_from[i]) * 1000.0)
+        raise KeyError(f"{section} km {km} is not on this route")
+
+    def edge_position(self, s: float) -> tuple[str, float]:
+        """(edge id, position on the edge) of route position s."""
+        i = self.index_at(s)
+        return self.edges[i], float(min(max(s - self.starts_m[i], 0.0), self.lengths_m[i]))
+
+    def speed_limit_at(self, s: float) -> float:
+        """Speed limit at the train front, m/s."""
+        return float(self.speeds_ms[self.index_at(s)])
+
+    def speed_limit_train(self, s: float, length_m: float) -> float:
+        """Lowest limit over the whole train [s − L, s] including turnouts (SUMO's rule), m/s."""
+        i0 = self.index_at(max(s - length_m, 0.0))
+        i1 = self.index_at(s)
+        v = float(self.speeds_ms[i0 : i1 + 1].min())
+        for ps, pv in self.point_limits:
+            if s - length_m - 1e-9 <= ps <= s + 1e-9 and pv < v:
+                v = pv
+        return v
+
+    def mean_gradient(self, s: float, length_m: float) -> float:
+        """Equivalent gradient averaged over the train [s − L, s] (SUMO's getSlope)."""
+        lo = s - length_m
+        if length_m <= 0:
+            return float(self.gradients[self.index_at(s)])
+        total = 0.0
+        if lo < 0:  # train tail before the route start: extend the first edge's gradient
+            total += self.gradients[0] * (-lo)
+            lo = 0.0
+        i0, i1 = self.index_at(lo), self.index_at(s)
+        for i in range(i0, i1 + 1):
+            a = max(lo, self.starts_m[i])
+            b = min(s, self.starts_m[i] + self.lengths_m[i])
+            if b > a:
+                total += self.gradients[i] * (b - a)
+        return total / length_m
+
+    def tunnel_factor_at(self, s: float) -> float:
+        """Tunnel factor at the train front (SUMO switches the vType when the front passes a portal)."""
+        return float(self.tunnel_factors[self.index_at(s)])
+
+    def restriction_targets(self) -> list[tuple[float, float]]:
+        """(position, speed) of every place where the limit drops, sorted by position."""
+        out = []
+        for i in range(1, len(self.edges)):
+            if self.speeds_ms[i] < self.speeds_ms[i - 1] - 1e-9:
+                out.append((float(self.starts_m[i]), float(self.speeds_ms[i])))
+        out += [(s, v) for s, v in self.point_limits]
+        return sorted(out)
+
+    def max_speed(self) -> float:
+        return float(max(self.speeds_ms.max(), max((v for _, v in self.point_limits), default=0.0)))
+
+    def min_speed_over(self, s0: float, s1: float) -> float:
+        i0, i1 = self.index_at(s0), self.index_at(s1)
+        return float(self.speeds_ms[i0 : i1 + 1].min()) if i1 >= i0 else math.inf

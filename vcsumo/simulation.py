@@ -1,0 +1,344 @@
+"""The simulation loop: step SUMO, observe trains, let a driver command speeds, record safety.
+
+One loop for every regime:
+
+* ``fbs`` — SUMO rail signals with fixed blocks;
+* ``mb`` — the same signals in moving-block mode (``--railsignal-moving-block``: SUMO's Rail model
+  keeps the absolute braking distance + 50 m to the train ahead);
+* ``vc`` — moving-block signals, and coupled followers driven by a vcsumo driver (controllers plus
+  safety supervisor) through ``setSpeed`` with speed mode 30.
+
+Every step the loop switches vTypes at tunnel portals (tunnel drag, the same for every regime),
+measures the gap from each train to the train ahead, counts gap violations (gap below the
+minimum safe gap), SUMO collisions and emergency braking, and records measuring-point passages.
+Everything is written into the run's folder as tidy CSV plus SUMO's own outputs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Protocol
+
+import pandas as pd
+
+from vcsumo.errors import SumoError, VcsumoError
+from vcsumo.line import Line
+from vcsumo.network import BuiltNetwork
+from vcsumo.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
+from vcsumo.timetable import PlannedTrain, routes_xml
+
+REGIMES = ("fbs", "mb", "vc")
+
+
+@dataclass(frozen=True)
+class MeasuringPoint:
+    label: str
+    section: str
+    km: float
+
+
+@dataclass(frozen=True)
+class TrainState:
+    """What the loop knows about a train after a step (SI units; passed to drivers)."""
+
+    id: str
+    time_s: float
+    s_m: float
+    """Front position along the train's own route, m."""
+    section: str
+    km: float
+    speed_mps: float
+    accel_mps2: float
+    edge: str
+    leader: str | None
+    gap_m: float
+    """Front-to-rear distance to the train ahead on the route, m (inf if none within look-ahead)."""
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    time_s: float
+    step_s: float
+    trains: dict[str, TrainState]
+
+
+class Driver(Protocol):
+    """A vcsumo driver (VC controllers + safety filter).  It never sees libsumo."""
+
+    def make_step(self, snapshot: Snapshot) -> dict[str, float]:
+        """Speed commands (m/s) for the trains it drives this step; other trains stay with SUMO."""
+        ...
+
+
+@dataclass
+class Scenario:
+    """Everything a run needs."""
+
+    line: Line
+    network: BuiltNetwork
+    trains: list[PlannedTrain]
+    regime: str
+    step_length_s: float = 0.5
+    record_period_s: float = 1.0
+    measuring_points: list[MeasuringPoint] = field(default_factory=list)
+    min_safe_gap_m: float = 50.0
+    seed: int = 42
+    end_time_s: float | None = None
+    lookahead_m: float = 30000.0
+    driver: Driver | None = None
+
+    def __post_init__(self) -> None:
+        if self.regime not in REGIMES:
+            raise VcsumoError(f"unknown regime '{self.regime}' (choose from {', '.join(REGIMES)})")
+        if not self.trains:
+            raise VcsumoError("no trains to simulate")
+
+
+@dataclass
+class SimulationResult:
+    trajectories: pd.DataFrame
+    passages: pd.DataFrame
+    stop_events: pd.DataFrame
+    trains: pd.DataFrame
+    summary: dict
+
+
+@dataclass
+class _Track:
+    plan: PlannedTrain
+    s: float = math.nan
+    sync_s: float = math.nan
+    sync_odo: float = math.nan
+    tf: float = 1.0
+    min_gap: float = math.inf
+    in_violation: bool = False
+    violations: int = 0
+    violation_time: float = 0.0
+    in_emergency: bool = False
+    emergencies: int = 0
+    controlled: bool = False
+    mp_s: dict[str, float] = field(default_factory=dict)
+    departed_at: float = math.nan
+    arrived_at: float = math.nan
+
+
+def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] | None = None) -> SimulationResult:
+    """Run a scenario in SUMO, writing SUMO outputs and vcsumo's CSVs into ``out``."""
+    t_wall = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    netdir = out / "network"
+    netdir.mkdir(exist_ok=True)
+    shutil.copy2(scn.network.net_file, netdir / "line.net.xml")
+    shutil.copy2(scn.network.stations_file, netdir / "stations.add.xml")
+    topo = scn.network.topology
+    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo))
+    begin = math.floor(min(t.depart_s for t in scn.trains))
+    if scn.end_time_s is not None:
+        end = scn.end_time_s
+    else:
+        longest = max(t.profile.length_m for t in scn.trains)
+        dwell = max(sum(s.dwell_s for s in t.stops) for t in scn.trains)
+        end = max(t.depart_s for t in scn.trains) + 4.0 * longest / 10.0 + dwell + 3600.0
+    args = sumo_args(
+        netdir / "line.net.xml", out / "routes.rou.xml", [netdir / "stations.add.xml"], out, scn.step_length_s, end,
+        moving_block=scn.regime in ("mb", "vc"), seed=scn.seed, fcd_period=scn.record_period_s,
+    ) + ["--begin", str(begin)]
+    _write_sumocfg(out / "scenario.sumocfg", args, out)
+
+    plans = {t.id: t for t in scn.trains}
+    state: dict[str, _Track] = {}
+    traj_rows: list[tuple] = []
+    pass_rows: list[tuple] = []
+    collisions: list[tuple[float, str, str]] = []
+    teleports: list[tuple[float, str]] = []
+    next_record = begin
+    dt = scn.step_length_s
+    with SumoBackend(args, error_log=out / "sumo_errors.log") as sim:
+        t = sim.time
+        while True:
+            t = sim.step()
+            for vid in sim.departed():
+                tr = _Track(plan=plans[vid], departed_at=t)
+                for mp in scn.measuring_points:
+                    try:
+                        s_mp = tr.plan.profile.s_of(mp.section, mp.km)
+                    except KeyError:
+                        continue
+                    if s_mp > tr.plan.start_s_m:
+                        tr.mp_s[mp.label] = s_mp
+                state[vid] = tr
+            for vid in sim.arrived():
+                if vid in state:
+                    state[vid].arrived_at = t
+            active = [v for v in sim.train_ids() if v in state]
+            snap_trains: dict[str, TrainState] = {}
+            for vid in active:
+                tr = state[vid]
+                ob = sim.observe(vid)
+                prof = tr.plan.profile
+                prev_s = tr.s
+                if not ob.edge.startswith(":") and 0 <= ob.route_index < len(prof.edges) and prof.edges[ob.route_index] == ob.edge:
+                    tr.s = float(prof.starts_m[ob.route_index]) + ob.lane_pos_m
+                    tr.sync_s, tr.sync_odo = tr.s, ob.odometer_m
+                else:
+                    tr.s = tr.sync_s + (ob.odometer_m - tr.sync_odo)
+                if math.isnan(tr.s):
+                    continue
+                # tunnel drag: switch the vType when the front passes a portal
+                tf = prof.tunnel_factor_at(tr.s)
+                if abs(tf - tr.tf) > 1e-9:
+                    sim.set_type(vid, tr.plan.stock.vtype_id(tf))
+                    tr.tf = tf
+                # measuring points
+                if not math.isnan(prev_s):
+                    for label, s_mp in tr.mp_s.items():
+                        if prev_s < s_mp <= tr.s:
+                            frac = (s_mp - prev_s) / max(tr.s - prev_s, 1e-9)
+                            pass_rows.append((label, vid, t - dt + frac * dt, ob.speed_mps))
+                lead = sim.leader(vid, scn.lookahead_m)
+                gap = lead[1] if lead else math.inf
+                tr.min_gap = min(tr.min_gap, gap)
+                if gap < scn.min_safe_gap_m:
+                    tr.violation_time += dt
+                    if not tr.in_violation:
+                        tr.violations += 1
+                    tr.in_violation = True
+                else:
+                    tr.in_violation = False
+                section, km = prof.km_at(tr.s)
+                snap_trains[vid] = TrainState(vid, t, tr.s, section, km, ob.speed_mps, ob.accel_mps2, ob.edge, lead[0] if lead else None, gap)
+            emergency_now = set(sim.emergency_stops())
+            for vid in active:
+                if vid in state:
+                    tr = state[vid]
+                    if vid in emergency_now and not tr.in_emergency:
+                        tr.emergencies += 1
+                    tr.in_emergency = vid in emergency_now
+            for collider, victim in sim.collisions():
+                collisions.append((t, collider, victim))
+            for vid in sim.teleports():
+                teleports.append((t, vid))
+            if t + 1e-9 >= next_record:
+                for ts in snap_trains.values():
+                    traj_rows.append((ts.time_s, ts.id, ts.section, round(ts.km, 6), round(ts.s_m, 3), ts.speed_mps, ts.accel_mps2,
+                                      None if math.isinf(ts.gap_m) else round(ts.gap_m, 3), ts.leader, ts.edge))
+                next_record += scn.record_period_s
+            if scn.driver is not None:
+                commands = scn.driver.make_step(Snapshot(t, dt, snap_trains))
+                for vid, v_cmd in commands.items():
+                    tr = state.get(vid)
+                    if tr is None:
+                        continue
+                    if not tr.controlled:
+                        sim.set_speed_mode(vid, SPEED_MODE_VC_FOLLOWER)
+                        tr.controlled = True
+                    sim.set_speed(vid, max(0.0, v_cmd))
+                for vid, tr in state.items():
+                    if tr.controlled and vid not in commands and vid in snap_trains:
+                        sim.release(vid)
+                        tr.controlled = False
+            if progress is not None:
+                progress(t - begin, end - begin)
+            if sim.min_expected() == 0 or t >= end - 1e-9:
+                break
+        sim_end = t
+    wall = time.perf_counter() - t_wall
+    result = _collect(scn, out, state, traj_rows, pass_rows, collisions, teleports, sim_end, wall)
+    return result
+
+
+def _write_sumocfg(path: Path, args: list[str], out: Path) -> None:
+    """A .sumocfg equivalent to the run, with paths relative to the results folder (for sumo-gui)."""
+    root = ET.Element("configuration")
+    it = iter(args)
+    for opt in it:
+        val = next(it)
+        key = opt.lstrip("-")
+        key = {"n": "net-file", "r": "route-files", "a": "additional-files"}.get(key, key)
+        parts = []
+        for v in val.split(","):
+            p = Path(v)
+            if p.is_absolute() and str(p).startswith(str(out)):
+                v = str(p.relative_to(out))
+            parts.append(v)
+        ET.SubElement(root, key, value=",".join(parts))
+    ET.indent(root)
+    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (tunnel vType switching and vcsumo drivers are not replayed) -->\n' + ET.tostring(root, encoding="unicode") + "\n")
+
+
+def _parse_xml_rows(path: Path, tag: str) -> list[dict]:
+    if not path.is_file():
+        return []
+    try:
+        return [el.attrib for el in ET.parse(path).getroot().iter(tag)]
+    except ET.ParseError as exc:
+        raise SumoError(f"{path}: SUMO output is not valid XML ({exc})") from None
+
+
+def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass_rows, collisions, teleports, sim_end: float, wall: float) -> SimulationResult:
+    traj = pd.DataFrame(traj_rows, columns=["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"])
+    passages = pd.DataFrame(pass_rows, columns=["measuring_point", "train", "time_s", "speed_mps"])
+    # stop events from SUMO's stop output
+    plat_station = {p.id: p.station_id for p in scn.network.topology.platforms.values()}
+    sched = {(t.id, s.platform): s for t in scn.trains for s in t.stops}
+    stop_rows = []
+    for r in _parse_xml_rows(out / "stops.xml", "stopinfo"):
+        tid = r.get("id")
+        plat = r.get("busStop") or r.get("trainStop") or ""
+        s = sched.get((tid, plat))
+        arr, dep = float(r.get("started", "nan")), float(r.get("ended", "nan"))
+        stop_rows.append({
+            "train": tid, "station": plat_station.get(plat, plat), "platform": plat, "arrival_s": arr, "departure_s": dep,
+            "dwell_s": dep - arr, "scheduled_arrival_s": s.arrival_s if s else None, "scheduled_departure_s": s.departure_s if s else None,
+            "arrival_delay_s": (arr - s.arrival_s) if s and s.arrival_s is not None else None,
+            "departure_delay_s": (dep - s.departure_s) if s and s.departure_s is not None else None,
+        })
+    stops = pd.DataFrame(stop_rows, columns=["train", "station", "platform", "arrival_s", "departure_s", "dwell_s", "scheduled_arrival_s", "scheduled_departure_s", "arrival_delay_s", "departure_delay_s"])
+    trip = {r["id"]: r for r in _parse_xml_rows(out / "tripinfo.xml", "tripinfo")}
+    rows = []
+    for t in scn.trains:
+        tr = state.get(t.id)
+        ti = trip.get(t.id, {})
+        arrival = float(ti["arrival"]) if ti.get("arrival") not in (None, "-1", "-1.00") else math.nan
+        if ti and not math.isnan(arrival) and t.final_stop is not None:
+            # the train arrives at the platform when it stops there (SUMO removes it after the 1 s stop)
+            st = stops[(stops.train == t.id) & (stops.platform == t.final_stop.platform)]
+            if len(st):
+                arrival = float(st.arrival_s.iloc[0])
+        rows.append({
+            "train": t.id, "service": t.service, "rolling_stock": t.stock.name, "direction": t.direction,
+            "scheduled_departure_s": t.depart_s, "departure_s": float(ti["depart"]) if ti else (tr.departed_at if tr else math.nan),
+            "departure_delay_s": float(ti["departDelay"]) if ti else math.nan, "arrival_s": arrival,
+            "scheduled_arrival_s": t.scheduled_arrival_s,
+            "arrival_delay_s": (arrival - t.scheduled_arrival_s) if t.scheduled_arrival_s is not None and not math.isnan(arrival) else None,
+            "running_time_s": (arrival - float(ti["depart"])) if ti and not math.isnan(arrival) else math.nan,
+            "route_length_m": float(ti["routeLength"]) if ti else math.nan,
+            "time_loss_s": float(ti["timeLoss"]) if ti else math.nan,
+            "min_gap_m": (tr.min_gap if tr and not math.isinf(tr.min_gap) else None),
+            "gap_violations": tr.violations if tr else 0, "gap_violation_time_s": tr.violation_time if tr else 0.0,
+            "emergency_brakes": tr.emergencies if tr else 0,
+            "collisions": sum(1 for c in collisions if t.id in (c[1], c[2])),
+            "arrived": bool(ti) and not math.isnan(arrival),
+        })
+    trains_df = pd.DataFrame(rows)
+    gaps = [tr.min_gap for tr in state.values() if not math.isinf(tr.min_gap)]
+    summary = {
+        "line": scn.line.name, "regime": scn.regime, "step_length_s": scn.step_length_s, "seed": scn.seed,
+        "trains": len(scn.trains), "trains_arrived": int(trains_df["arrived"].sum()),
+        "min_gap_m": min(gaps) if gaps else None, "min_safe_gap_m": scn.min_safe_gap_m,
+        "gap_violations": int(trains_df["gap_violations"].sum()), "collisions": len(collisions),
+        "emergency_brakes": int(trains_df["emergency_brakes"].sum()), "teleports": len(teleports),
+        "simulated_until_s": sim_end, "wall_time_s": round(wall, 3),
+    }
+    traj.to_csv(out / "trajectories.csv", index=False)
+    passages.to_csv(out / "passages.csv", index=False)
+    stops.to_csv(out / "stop_events.csv", index=False)
+    trains_df.to_csv(out / "summary.csv", index=False)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return SimulationResult(traj, passages, stops, trains_df, summary)

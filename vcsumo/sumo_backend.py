@@ -1,0 +1,187 @@
+"""The only module that imports libsumo.
+
+:class:`SumoBackend` owns one SUMO simulation (a context manager: start, step, close).  It reads
+train states, applies speed commands, switches vTypes at tunnel portals and reports collisions,
+emergency braking and teleports.  Everything else in vcsumo sees plain Python data.
+
+Speed modes (``setSpeedMode`` bit masks, SUMO docs "TraCI/Change Vehicle State"):
+
+* :data:`SPEED_MODE_DEFAULT` (31) — SUMO drives: safe speed (signals, moving-block braking
+  distance), traction and braking limits, right of way, red lights.
+* :data:`SPEED_MODE_VC_FOLLOWER` (30) — a virtually coupled follower driven by vcsumo: SUMO's
+  safe-speed (absolute braking distance) check is OFF, so the controller alone keeps the gap;
+  traction and braking limits and red signals are still enforced by SUMO.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from vcsumo.errors import SumoError
+from vcsumo.sumo_paths import sumo_binary, sumo_home
+
+SPEED_MODE_DEFAULT = 31
+SPEED_MODE_VC_FOLLOWER = 30
+INVALID_DISTANCE = -1073741824.0
+
+
+@dataclass(frozen=True)
+class TrainObservation:
+    """State of one train in SUMO after a step (SI units)."""
+
+    id: str
+    edge: str
+    lane_pos_m: float
+    speed_mps: float
+    accel_mps2: float
+    odometer_m: float
+    route_index: int
+    type_id: str
+
+
+class SumoBackend:
+    """A running SUMO simulation (libsumo), used as ``with SumoBackend(args) as sim: ...``."""
+
+    def __init__(self, args: list[str], error_log: Path | None = None):
+        self.args = list(args)
+        self.error_log = error_log
+        self._ls = None
+
+    # ----------------------------------------------------------------------------- lifecycle
+    def __enter__(self) -> "SumoBackend":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def start(self) -> None:
+        sumo_home()  # sets SUMO_HOME for XML validation
+        import libsumo  # noqa: PLC0415  (the one place libsumo is imported)
+
+        self._ls = libsumo
+        cmd = [sumo_binary("sumo")] + self.args
+        if self.error_log is not None:
+            cmd += ["--error-log", str(self.error_log)]
+        try:
+            libsumo.start(cmd)
+        except Exception as exc:  # libsumo raises TraCIException / FatalTraCIError
+            raise SumoError(f"SUMO failed to start: {self._errors() or exc}") from None
+
+    def close(self) -> None:
+        if self._ls is not None:
+            try:
+                self._ls.close()
+            except Exception:
+                pass
+            self._ls = None
+
+    def _errors(self) -> str:
+        if self.error_log is not None and self.error_log.is_file():
+            lines = [ln.strip() for ln in self.error_log.read_text(errors="replace").splitlines() if ln.startswith("Error")]
+            return " | ".join(lines[:5])
+        return ""
+
+    # ----------------------------------------------------------------------------- stepping
+    def step(self) -> float:
+        """Advance one step; returns the new simulation time, s."""
+        try:
+            self._ls.simulationStep()
+        except Exception as exc:
+            raise SumoError(f"SUMO failed during the simulation: {self._errors() or exc}") from None
+        return self._ls.simulation.getTime()
+
+    @property
+    def time(self) -> float:
+        return self._ls.simulation.getTime()
+
+    def min_expected(self) -> int:
+        """Trains still in the simulation or waiting to be inserted."""
+        return self._ls.simulation.getMinExpectedNumber()
+
+    def departed(self) -> list[str]:
+        return list(self._ls.simulation.getDepartedIDList())
+
+    def arrived(self) -> list[str]:
+        return list(self._ls.simulation.getArrivedIDList())
+
+    def train_ids(self) -> list[str]:
+        return list(self._ls.vehicle.getIDList())
+
+    def observe(self, vid: str) -> TrainObservation:
+        v = self._ls.vehicle
+        return TrainObservation(
+            id=vid, edge=v.getRoadID(vid), lane_pos_m=v.getLanePosition(vid), speed_mps=v.getSpeed(vid),
+            accel_mps2=v.getAcceleration(vid), odometer_m=v.getDistance(vid), route_index=v.getRouteIndex(vid),
+            type_id=v.getTypeID(vid),
+        )
+
+    def leader(self, vid: str, lookahead_m: float) -> tuple[str, float] | None:
+        """(leader id, gap front-to-rear in m) within ``lookahead_m`` on the route ahead, or None."""
+        res = self._ls.vehicle.getLeader(vid, lookahead_m)
+        if not res or not res[0]:
+            return None
+        lid, gap = res
+        return lid, gap + self._ls.vehicle.getMinGap(vid)
+
+    def driving_distance(self, vid: str, edge: str, pos: float) -> float | None:
+        d = self._ls.vehicle.getDrivingDistance(vid, edge, pos)
+        return None if d <= INVALID_DISTANCE + 1 or d < -1e8 else d
+
+    # ----------------------------------------------------------------------------- commands
+    def set_type(self, vid: str, type_id: str) -> None:
+        self._ls.vehicle.setType(vid, type_id)
+
+    def set_speed(self, vid: str, speed_mps: float) -> None:
+        """Command a speed for the next step (−1 gives control back to SUMO)."""
+        self._ls.vehicle.setSpeed(vid, speed_mps)
+
+    def set_speed_mode(self, vid: str, mode: int) -> None:
+        self._ls.vehicle.setSpeedMode(vid, mode)
+
+    def release(self, vid: str) -> None:
+        """Hand a train back to SUMO's own driver."""
+        self._ls.vehicle.setSpeedMode(vid, SPEED_MODE_DEFAULT)
+        self._ls.vehicle.setSpeed(vid, -1)
+
+    # ----------------------------------------------------------------------------- safety events
+    def collisions(self) -> list[tuple[str, str]]:
+        """(collider, victim) pairs of this step."""
+        return [(c.collider, c.victim) for c in self._ls.simulation.getCollisions()]
+
+    def emergency_stops(self) -> list[str]:
+        """Trains that braked harder than their service deceleration in this step."""
+        return list(self._ls.simulation.getEmergencyStoppingVehiclesIDList())
+
+    def teleports(self) -> list[str]:
+        return list(self._ls.simulation.getStartingTeleportIDList())
+
+    def signal_states(self) -> dict[str, str]:
+        tl = self._ls.trafficlight
+        return {t: tl.getRedYellowGreenState(t) for t in tl.getIDList()}
+
+
+def sumo_args(
+    net_file: Path, route_file: Path, additional: list[Path], out: Path, step_length: float, end_time: float,
+    moving_block: bool, seed: int = 42, fcd_period: float = 1.0,
+) -> list[str]:
+    """SUMO options for a vcsumo run (also written into the results' .sumocfg)."""
+    args = [
+        "-n", str(net_file), "-r", str(route_file), "-a", ",".join(str(a) for a in additional),
+        "--step-length", f"{step_length}", "--end", f"{end_time}", "--seed", str(seed),
+        "--time-to-teleport", "-1", "--collision.action", "warn", "--collision.check-junctions", "true",
+        "--no-step-log", "true", "--duration-log.disable", "true", "--default.speeddev", "0",
+        "--fcd-output", str(out / "fcd.xml"), "--device.fcd.period", f"{fcd_period}",
+        "--fcd-output.distance", "true", "--fcd-output.acceleration", "true",
+        "--tripinfo-output", str(out / "tripinfo.xml"), "--stop-output", str(out / "stops.xml"),
+        "--railsignal-vehicle-output", str(out / "railsignal_vehicles.xml"),
+    ]
+    if moving_block:
+        args += ["--railsignal-moving-block", "true"]
+    return args
+
+
+def is_valid_distance(d: float) -> bool:
+    return d > -1e8 and not math.isnan(d)

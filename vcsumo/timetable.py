@@ -1,0 +1,297 @@
+"""Timetables: services on a line, resolved into SUMO trains with routes and stops.
+
+A timetable file (``routes/<line>/<name>.yaml``) lists services: train type, origin and
+destination (a station id, ``start``/``end`` of the main line, or ``branch:<id>`` for the far end of
+a branch), departure time, intermediate stops (dwell and optional scheduled times) and an
+optional repeat pattern; and convoys (services that run virtually coupled).  Everything is
+checked against the line before a run starts: unknown stations or trains, stops not on the route,
+times out of order and schedules faster than the train can run are errors naming the field.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from pydantic import Field, field_validator
+
+from vcsumo.config import StrictModel, load_model
+from vcsumo.errors import InputError, VcsumoError
+from vcsumo.line import Line, project_root
+from vcsumo.rolling_stock import RollingStock, load_rolling_stock
+from vcsumo.route_profile import RouteProfile
+from vcsumo.running_time import Stop, time_at, unhindered_run
+from vcsumo.topology import Topology
+from vcsumo.units import format_clock, parse_clock
+
+Clock = str | float | int
+
+
+class StopCall(StrictModel):
+    """A stop of a service at a station."""
+
+    station: str = Field(description="Station id")
+    dwell_s: float | None = Field(default=None, ge=0, description="Minimum dwell, s (default: the station's)")
+    arrival: Clock | None = Field(default=None, description="Scheduled arrival, HH:MM[:SS] or s")
+    departure: Clock | None = Field(default=None, description="Scheduled (earliest) departure, HH:MM[:SS] or s")
+
+
+class Repeat(StrictModel):
+    """Repeat a service at a fixed interval (ids get a suffix .1, .2, ...)."""
+
+    count: int = Field(ge=1, le=1000, description="Number of trains")
+    every_s: float = Field(gt=0, description="Interval between departures, s")
+
+
+class Service(StrictModel):
+    """One train (or a repeated pattern of identical trains)."""
+
+    id: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="Service id")
+    train: str = Field(description="Rolling stock name or path")
+    origin: str = Field(description="Station id, 'start', 'end' or 'branch:<id>'")
+    destination: str = Field(description="Station id, 'start', 'end' or 'branch:<id>'")
+    departure: Clock = Field(description="Departure from the origin, HH:MM[:SS] or s")
+    arrival: Clock | None = Field(default=None, description="Scheduled arrival at the destination")
+    stops: list[StopCall] = Field(default_factory=list, description="Intermediate stops in running order")
+    repeat: Repeat | None = None
+
+    @field_validator("departure", "arrival")
+    @classmethod
+    def _clock(cls, v: Clock | None) -> Clock | None:
+        if v is not None:
+            parse_clock(v)
+        return v
+
+
+class Convoy(StrictModel):
+    """Services that run virtually coupled (the first is the convoy leader)."""
+
+    id: str = Field(pattern=r"^[A-Za-z0-9_\-]+$")
+    services: list[str] = Field(min_length=2, description="Service ids, leader first")
+    couple_at: str | None = Field(default=None, description="Station id or junction where the convoy forms (default: as soon as possible)")
+    decouple_at: str | None = Field(default=None, description="Station id or junction where it splits (default: where the routes part)")
+
+
+class TimetableFile(StrictModel):
+    """A timetable file."""
+
+    name: str = Field(description="Timetable name")
+    line: str = Field(description="Line the timetable runs on")
+    description: str = ""
+    sources: dict[str, str] = Field(default_factory=dict)
+    services: list[Service] = Field(min_length=1)
+    convoys: list[Convoy] = Field(default_factory=list)
+
+
+@dataclass
+class PlannedStop:
+    platform: str
+    station: str
+    s_m: float
+    dwell_s: float
+    arrival_s: float | None
+    departure_s: float | None
+
+
+@dataclass
+class PlannedTrain:
+    """A train ready to be written into SUMO routes and followed by the loop."""
+
+    id: str
+    service: str
+    stock: RollingStock
+    edges: list[str]
+    profile: RouteProfile
+    depart_s: float
+    depart_pos_m: float
+    depart_speed_mps: float
+    direction: str
+    stops: list[PlannedStop] = field(default_factory=list)
+    final_stop: PlannedStop | None = None
+    end_pos_m: float | None = None
+    scheduled_arrival_s: float | None = None
+    start_s_m: float = 0.0
+    """Route position of the front at departure, m."""
+
+
+def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
+    p = Path(spec)
+    if p.suffix in (".yaml", ".yml"):
+        if not p.is_file():
+            raise InputError(p, None, "timetable file not found")
+        return p.resolve()
+    for base in (project_root() / "routes" / line.name, line.path.parent):
+        cand = base / f"{spec}.yaml"
+        if cand.is_file():
+            return cand
+    avail = sorted(x.stem for x in (project_root() / "routes" / line.name).glob("*.yaml"))
+    raise InputError(None, "--timetable", f"unknown timetable '{spec}' for line '{line.name}' (available: {', '.join(avail) or 'none'}; or give a path)")
+
+
+def load_timetable(spec: str | Path, line: Line) -> tuple[TimetableFile, Path]:
+    path = resolve_timetable_path(spec, line)
+    tt = load_model(TimetableFile, path)
+    if tt.line != line.name:
+        raise InputError(path, "line", f"timetable is for line '{tt.line}', not '{line.name}'")
+    return tt, path
+
+
+def _endpoint_edges(topo: Topology, name: str, line: Line, path: Path, field_name: str) -> tuple[list[tuple[str, float]], list[tuple[str, float]]]:
+    """(start candidates, goal candidates) as (edge, position of the train front)."""
+    if name in ("start", "end") or name.startswith("branch:"):
+        try:
+            starts, goals = topo.end_edges(name)
+        except KeyError:
+            raise InputError(path, field_name, f"unknown branch in '{name}' (branches: {', '.join(b.id for b in line.data.branches) or 'none'})") from None
+        return [(e, -1.0) for e in starts], [(e, topo.edges[e].length_m) for e in goals]
+    try:
+        line.station(name)
+    except KeyError:
+        raise InputError(path, field_name, f"unknown station '{name}' (stations of {line.name}: {', '.join(line.all_station_ids())})") from None
+    plats = topo.platforms_of(name)
+    return [(p.edge, p.end_pos_m) for p in plats], [(p.edge, p.end_pos_m) for p in plats]
+
+
+def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: float = 0.5, check_feasible: bool = True) -> list[PlannedTrain]:
+    """Resolve every service into planned trains (repeats expanded), checking it against the line."""
+    trains: list[PlannedTrain] = []
+    seen: set[str] = set()
+    stocks: dict[str, RollingStock] = {}
+    runtime_cache: dict[tuple, float] = {}
+    for i, svc in enumerate(tt.services):
+        f = f"services[{i}]"
+        if svc.id in seen:
+            raise InputError(path, f"{f}.id", f"duplicate service id '{svc.id}'")
+        seen.add(svc.id)
+        if svc.train not in stocks:
+            try:
+                stocks[svc.train] = load_rolling_stock(svc.train)
+            except InputError as exc:
+                if exc.path is None:
+                    raise InputError(path, f"{f}.train", exc.message) from None
+                raise
+        stock = stocks[svc.train]
+        starts, _ = _endpoint_edges(topo, svc.origin, line, path, f"{f}.origin")
+        _, goals = _endpoint_edges(topo, svc.destination, line, path, f"{f}.destination")
+        if svc.origin == svc.destination:
+            raise InputError(path, f"{f}.destination", "destination equals origin")
+        route = topo.route_edges([e for e, _ in starts], [e for e, _ in goals])
+        if route is None:
+            raise InputError(path, f"{f}.destination", f"no route from '{svc.origin}' to '{svc.destination}' on line {line.name} (infeasible)")
+        start_pos = dict(starts)[route[0]]
+        if start_pos < 0:
+            start_pos = min(stock.length_m + 1.0, topo.edges[route[0]].length_m)
+        end_pos = dict(goals)[route[-1]]
+        prof = RouteProfile.from_edges(topo, route)
+        direction = topo.edges[route[0]].direction
+        # stops
+        planned_stops: list[PlannedStop] = []
+        last_s = start_pos
+        for j, call in enumerate(svc.stops):
+            fs = f"{f}.stops[{j}]"
+            try:
+                _, st = line.station(call.station)
+            except KeyError:
+                raise InputError(path, f"{fs}.station", f"unknown station '{call.station}' (stations of {line.name}: {', '.join(line.all_station_ids())})") from None
+            plat = next((p for p in topo.platforms_of(call.station) if p.edge in route), None)
+            if plat is None:
+                raise InputError(path, f"{fs}.station", f"station '{call.station}' is not on the route from '{svc.origin}' to '{svc.destination}'")
+            s_stop = float(prof.starts_m[route.index(plat.edge)] + plat.end_pos_m)
+            if s_stop <= last_s + 1.0:
+                raise InputError(path, f"{fs}.station", f"stop at '{call.station}' is not after the previous stop in running order")
+            last_s = s_stop
+            arr = parse_clock(call.arrival) if call.arrival is not None else None
+            dep = parse_clock(call.departure) if call.departure is not None else None
+            dwell = call.dwell_s if call.dwell_s is not None else st.dwell_s
+            if arr is not None and dep is not None and dep < arr:
+                raise InputError(path, f"{fs}.departure", "scheduled departure is before the scheduled arrival")
+            planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep))
+        end_s = float(prof.starts_m[-1] + end_pos)
+        final = None
+        if svc.destination not in ("start", "end") and not svc.destination.startswith("branch:"):
+            plat = next(p for p in topo.platforms_of(svc.destination) if p.edge == route[-1])
+            final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None)
+        dep0 = parse_clock(svc.departure)
+        arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
+        times = [dep0] + [x for s in planned_stops for x in (s.arrival_s, s.departure_s) if x is not None] + ([arr_sched] if arr_sched is not None else [])
+        if any(b < a for a, b in zip(times, times[1:])):
+            raise InputError(path, f, "scheduled times are not in running order")
+        if check_feasible and (arr_sched is not None or any(s.arrival_s is not None for s in planned_stops)):
+            key = (tuple(route), stock.name, tuple((s.s_m, s.dwell_s) for s in planned_stops), start_pos, end_s)
+            if key not in runtime_cache:
+                run = unhindered_run(stock.params(), prof, dt=dt, s0=start_pos, stops=[Stop(s.s_m, s.dwell_s) for s in planned_stops], end_s=end_s)
+                runtime_cache[key] = run
+            run = runtime_cache[key]
+            for j, s in enumerate(planned_stops):
+                if s.arrival_s is not None:
+                    t_min = float(time_at(run, s.s_m - 0.5)[0])
+                    if dep0 + t_min > s.arrival_s + 1.0:
+                        raise InputError(path, f"{f}.stops[{j}].arrival", f"infeasible: scheduled {format_clock(s.arrival_s)} but the train needs {t_min:.0f} s from departure (earliest {format_clock(dep0 + t_min)})")
+            if arr_sched is not None:
+                t_min = float(run["time_s"].iloc[-1])
+                if dep0 + t_min > arr_sched + 1.0:
+                    raise InputError(path, f"{f}.arrival", f"infeasible: scheduled {format_clock(arr_sched)} but the train needs {t_min:.0f} s (earliest {format_clock(dep0 + t_min)})")
+        count = svc.repeat.count if svc.repeat else 1
+        every = svc.repeat.every_s if svc.repeat else 0.0
+        for k in range(count):
+            off = k * every
+            tid = svc.id if count == 1 else f"{svc.id}.{k + 1}"
+            trains.append(PlannedTrain(
+                id=tid, service=svc.id, stock=stock, edges=route, profile=prof, depart_s=dep0 + off,
+                depart_pos_m=start_pos, depart_speed_mps=0.0, direction=direction,
+                stops=[PlannedStop(s.platform, s.station, s.s_m, s.dwell_s, None if s.arrival_s is None else s.arrival_s + off,
+                                   None if s.departure_s is None else s.departure_s + off) for s in planned_stops],
+                final_stop=final, end_pos_m=end_pos, scheduled_arrival_s=None if arr_sched is None else arr_sched + off,
+                start_s_m=start_pos,
+            ))
+    ids = [t.id for t in trains]
+    if len(set(ids)) != len(ids):
+        dup = next(x for x in ids if ids.count(x) > 1)
+        raise InputError(path, "services", f"train id '{dup}' occurs twice after expanding repeats")
+    for c_i, cv in enumerate(tt.convoys):
+        for s_i, sid in enumerate(cv.services):
+            if sid not in seen:
+                raise InputError(path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{sid}', which does not exist")
+    return trains
+
+
+def routes_xml(trains: list[PlannedTrain], topo: Topology) -> str:
+    """SUMO route file: vTypes (open-air and tunnel variants) and vehicles sorted by departure."""
+    factors = sorted({e.tunnel_factor for e in topo.edges.values()})
+    stocks = {t.stock.name: t.stock for t in trains}
+    out = ["<routes>"]
+    for st in stocks.values():
+        for tf in factors:
+            out.append("  " + st.vtype_xml(tf))
+    for t in sorted(trains, key=lambda x: (x.depart_s, x.id)):
+        first_tf = topo.edges[t.edges[0]].tunnel_factor
+        speed = "0" if t.depart_speed_mps <= 0 else f"{t.depart_speed_mps:.4f}"
+        out.append(
+            f'  <vehicle id={quoteattr(t.id)} type="{t.stock.vtype_id(first_tf)}" depart="{t.depart_s:.2f}" '
+            f'departPos="{t.depart_pos_m:.3f}" departSpeed="{speed}" arrivalPos="{(t.end_pos_m or topo.edges[t.edges[-1]].length_m):.3f}" line={quoteattr(t.service)}>'
+        )
+        out.append(f'    <route edges="{" ".join(t.edges)}"/>')
+        for s in t.stops:
+            extra = ""
+            if s.arrival_s is not None:
+                extra += f' arrival="{s.arrival_s:.1f}"'
+            if s.departure_s is not None:
+                extra += f' until="{s.departure_s:.1f}"'
+            out.append(f'    <stop trainStop="{s.platform}" duration="{s.dwell_s:.1f}"{extra}/>')
+        if t.final_stop is not None:
+            extra = f' arrival="{t.scheduled_arrival_s:.1f}"' if t.scheduled_arrival_s is not None else ""
+            out.append(f'    <stop trainStop="{t.final_stop.platform}" duration="1"{extra}/>')
+        elif t.end_pos_m is not None:
+            out.append(f'    <stop lane="{t.edges[-1]}_0" endPos="{t.end_pos_m:.3f}" duration="1"/>')
+        out.append("  </vehicle>")
+    out.append("</routes>")
+    return "\n".join(out) + "\n"
+
+
+def check_within(trains: list[PlannedTrain]) -> None:
+    if not trains:
+        raise VcsumoError("no trains to simulate")
+    if any(math.isnan(t.depart_s) for t in trains):  # pragma: no cover
+        raise VcsumoError("a train has no departure time")
