@@ -201,13 +201,13 @@ def braking_distance(v: Any, decel: float, reaction_time_s: float = 0.0) -> Any:
     return v * v / (2.0 * decel) + v * reaction_time_s
 
 
-def discrete_stop_speed(gap_m: float, decel: float, dt: float, reaction_steps: float = 1.0) -> float:
+def discrete_stop_speed(gap_m: float, decel: float, dt: float, reaction_steps: float = 0.0) -> float:
     """Highest speed from which a semi-implicit-Euler driver stops within ``gap_m``, m/s.
 
-    The driver keeps the chosen speed for ``reaction_steps`` steps, then brakes by decel·dt per step:
-    v²/(2b) + v·dt·(reaction_steps + ½) ≤ gap.  This mirrors how SUMO's Rail model approaches a
-    stop or a red signal (its braking distance is that of :func:`braking_distance` with
-    t_r ≈ 1.5·dt).
+    Solves v²/(2b) + v·dt·(reaction_steps + ½) = gap.  With ``reaction_steps = 0`` this is how
+    SUMO's Rail model approaches a stop, a red signal or (moving block) the braking point behind
+    the train ahead: its braking distance is v²/(2b) + ½·Δt·v (measured, see
+    :func:`vcsumo.blocking_time.sumo_reaction_time`).
     """
     if gap_m <= 0:
         return 0.0

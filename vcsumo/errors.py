@@ -21,10 +21,8 @@ class InputError(VcsumoError):
         self.path = None if path is None else str(path)
         self.field = field
         self.message = message
-        where = self.path or "<input>"
-        if field:
-            where += f": {field}"
-        super().__init__(f"{where}: {message}")
+        where = [x for x in (self.path, field) if x]
+        super().__init__(": ".join(where + [message]))
 
 
 class SumoError(VcsumoError):

@@ -86,7 +86,7 @@ def unhindered_run(
         # next stop
         if pending:
             gap = pending[0].s_m - s
-            v_lim = min(v_lim, discrete_stop_speed(gap, b, dt, reaction_steps=1.0))
+            v_lim = min(v_lim, discrete_stop_speed(gap, b, dt))
         # traction
         if hold_at_vmax and v >= vmax_train - 1e-9:
             v_trac = vmax_train

@@ -92,6 +92,14 @@ class Scenario:
     end_time_s: float | None = None
     lookahead_m: float = 30000.0
     driver: Driver | None = None
+    on_sight_speed_mps: float = 30.0 / 3.6
+    """Below this follower speed, FBS/MB allow on-sight movement (SUMO's MB margin applies only above
+    30 km/h): gaps there are reported but not counted as violations.  Trains driven by a vcsumo
+    driver are always held to ``min_safe_gap_m``."""
+    full_outputs: bool = True
+    """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
+    trace_speeds: bool = False
+    """Keep every train's (position, speed) at every step in the result (hindrance checks)."""
 
     def __post_init__(self) -> None:
         if self.regime not in REGIMES:
@@ -107,6 +115,8 @@ class SimulationResult:
     stop_events: pd.DataFrame
     trains: pd.DataFrame
     summary: dict
+    speed_traces: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
+    """train -> (route positions m, speeds m/s) at every step, when Scenario.trace_speeds."""
 
 
 @dataclass
@@ -147,7 +157,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         end = max(t.depart_s for t in scn.trains) + 4.0 * longest / 10.0 + dwell + 3600.0
     args = sumo_args(
         netdir / "line.net.xml", out / "routes.rou.xml", [netdir / "stations.add.xml"], out, scn.step_length_s, end,
-        moving_block=scn.regime in ("mb", "vc"), seed=scn.seed, fcd_period=scn.record_period_s,
+        moving_block=scn.regime in ("mb", "vc"), seed=scn.seed, fcd_period=scn.record_period_s, full_outputs=scn.full_outputs,
     ) + ["--begin", str(begin)]
     _write_sumocfg(out / "scenario.sumocfg", args, out)
 
@@ -157,6 +167,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     pass_rows: list[tuple] = []
     collisions: list[tuple[float, str, str]] = []
     teleports: list[tuple[float, str]] = []
+    traces: dict[str, tuple[list[float], list[float]]] = {}
     next_record = begin
     dt = scn.step_length_s
     with SumoBackend(args, error_log=out / "sumo_errors.log") as sim:
@@ -204,13 +215,18 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 lead = sim.leader(vid, scn.lookahead_m)
                 gap = lead[1] if lead else math.inf
                 tr.min_gap = min(tr.min_gap, gap)
-                if gap < scn.min_safe_gap_m:
+                counts = tr.controlled or ob.speed_mps > scn.on_sight_speed_mps
+                if gap < scn.min_safe_gap_m and counts:
                     tr.violation_time += dt
                     if not tr.in_violation:
                         tr.violations += 1
                     tr.in_violation = True
                 else:
                     tr.in_violation = False
+                if scn.trace_speeds:
+                    tr_s, tr_v = traces.setdefault(vid, ([], []))
+                    tr_s.append(tr.s)
+                    tr_v.append(ob.speed_mps)
                 section, km = prof.km_at(tr.s)
                 snap_trains[vid] = TrainState(vid, t, tr.s, section, km, ob.speed_mps, ob.accel_mps2, ob.edge, lead[0] if lead else None, gap)
             emergency_now = set(sim.emergency_stops())
@@ -250,6 +266,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         sim_end = t
     wall = time.perf_counter() - t_wall
     result = _collect(scn, out, state, traj_rows, pass_rows, collisions, teleports, sim_end, wall)
+    result.speed_traces = traces
     return result
 
 
@@ -263,9 +280,11 @@ def _write_sumocfg(path: Path, args: list[str], out: Path) -> None:
         key = {"n": "net-file", "r": "route-files", "a": "additional-files"}.get(key, key)
         parts = []
         for v in val.split(","):
-            p = Path(v)
-            if p.is_absolute() and str(p).startswith(str(out)):
-                v = str(p.relative_to(out))
+            if key in ("net-file", "route-files", "additional-files") or key.endswith("-output") or key.endswith("-log"):
+                try:
+                    v = str(Path(v).resolve().relative_to(out.resolve()))
+                except ValueError:
+                    pass
             parts.append(v)
         ET.SubElement(root, key, value=",".join(parts))
     ET.indent(root)
@@ -336,7 +355,8 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass
         "emergency_brakes": int(trains_df["emergency_brakes"].sum()), "teleports": len(teleports),
         "simulated_until_s": sim_end, "wall_time_s": round(wall, 3),
     }
-    traj.to_csv(out / "trajectories.csv", index=False)
+    if scn.full_outputs:
+        traj.to_csv(out / "trajectories.csv", index=False)
     passages.to_csv(out / "passages.csv", index=False)
     stops.to_csv(out / "stop_events.csv", index=False)
     trains_df.to_csv(out / "summary.csv", index=False)

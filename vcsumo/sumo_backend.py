@@ -165,7 +165,7 @@ class SumoBackend:
 
 def sumo_args(
     net_file: Path, route_file: Path, additional: list[Path], out: Path, step_length: float, end_time: float,
-    moving_block: bool, seed: int = 42, fcd_period: float = 1.0,
+    moving_block: bool, seed: int = 42, fcd_period: float = 1.0, full_outputs: bool = True,
 ) -> list[str]:
     """SUMO options for a vcsumo run (also written into the results' .sumocfg)."""
     args = [
@@ -173,11 +173,15 @@ def sumo_args(
         "--step-length", f"{step_length}", "--end", f"{end_time}", "--seed", str(seed),
         "--time-to-teleport", "-1", "--collision.action", "warn", "--collision.check-junctions", "true",
         "--no-step-log", "true", "--duration-log.disable", "true", "--default.speeddev", "0",
-        "--fcd-output", str(out / "fcd.xml"), "--device.fcd.period", f"{fcd_period}",
-        "--fcd-output.distance", "true", "--fcd-output.acceleration", "true",
+        "--message-log", str(out / "sumo_messages.log"),
         "--tripinfo-output", str(out / "tripinfo.xml"), "--stop-output", str(out / "stops.xml"),
-        "--railsignal-vehicle-output", str(out / "railsignal_vehicles.xml"),
     ]
+    if full_outputs:
+        args += [
+            "--fcd-output", str(out / "fcd.xml"), "--device.fcd.period", f"{fcd_period}",
+            "--fcd-output.distance", "true", "--fcd-output.acceleration", "true",
+            "--railsignal-vehicle-output", str(out / "railsignal_vehicles.xml"),
+        ]
     if moving_block:
         args += ["--railsignal-moving-block", "true"]
     return args

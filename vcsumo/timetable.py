@@ -114,6 +114,8 @@ class PlannedTrain:
     scheduled_arrival_s: float | None = None
     start_s_m: float = 0.0
     """Route position of the front at departure, m."""
+    stop_at_end: bool = True
+    """Brake to a stop at the end of the route (False: run off the end at speed)."""
 
 
 def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
@@ -283,7 +285,7 @@ def routes_xml(trains: list[PlannedTrain], topo: Topology) -> str:
         if t.final_stop is not None:
             extra = f' arrival="{t.scheduled_arrival_s:.1f}"' if t.scheduled_arrival_s is not None else ""
             out.append(f'    <stop trainStop="{t.final_stop.platform}" duration="1"{extra}/>')
-        elif t.end_pos_m is not None:
+        elif t.end_pos_m is not None and t.stop_at_end:
             out.append(f'    <stop lane="{t.edges[-1]}_0" endPos="{t.end_pos_m:.3f}" duration="1"/>')
         out.append("  </vehicle>")
     out.append("</routes>")

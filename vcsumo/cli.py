@@ -1,0 +1,227 @@
+"""The ``vcsumo`` command: thin — parse options, load and validate inputs, call a library function.
+
+Every problem the user can fix ends in one line ``error: <file>: <field>: <message>`` and exit
+status 2; results folders are written completely or not at all (:mod:`vcsumo.results`).
+"""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from vcsumo.errors import VcsumoError
+
+console = Console(stderr=True)
+out_console = Console()
+
+
+def _progress() -> Progress:
+    return Progress(
+        TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+        TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=False,
+    )
+
+
+@contextmanager
+def _task(progress: Progress, description: str) -> Iterator:
+    task = progress.add_task(description, total=1.0)
+
+    def update(done: float, total: float) -> None:
+        progress.update(task, completed=min(done / total, 1.0) if total else 1.0)
+
+    yield update
+    progress.update(task, completed=1.0)
+
+
+def _print_table(df, title: str, columns: list[str] | None = None) -> None:
+    cols = columns or list(df.columns)
+    table = Table(title=title, show_lines=False)
+    for c in cols:
+        table.add_column(c, justify="right" if df[c].dtype.kind in "fi" else "left")
+    for _, row in df[cols].iterrows():
+        table.add_row(*[f"{v:.2f}" if isinstance(v, float) else str(v) for v in row])
+    out_console.print(table)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="vcsumo")
+def cli() -> None:
+    """vcsumo: fixed block, moving block and virtual coupling on real lines, in SUMO."""
+
+
+# ----------------------------------------------------------------------------------------------
+@cli.command("lines")
+def lines_cmd() -> None:
+    """List the shipped lines and train types."""
+    from vcsumo.line import load_line, shipped_lines
+    from vcsumo.rolling_stock import load_rolling_stock, shipped_rolling_stock
+
+    for name in shipped_lines():
+        ln = load_line(name)
+        out_console.print(f"[bold]{name}[/]: {ln.data.title} ({ln.data.km_start}–{ln.data.km_end} km, {ln.data.tracks} track, "
+                          f"{len(ln.data.stations)} stations, {len(ln.data.branches)} branches)")
+    for name in shipped_rolling_stock():
+        st = load_rolling_stock(name)
+        out_console.print(f"  train [bold]{name}[/]: {st.title}")
+
+
+@cli.command("build-network")
+@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
+@click.option("--force", is_flag=True, help="Rebuild even if the cached network is up to date")
+def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool) -> None:
+    """Build (or reuse) the SUMO network of a line."""
+    from vcsumo.line import load_line
+    from vcsumo.network import build_network
+
+    line = load_line(line_spec)
+    net = build_network(line, block_length_m, force=force)
+    topo = net.topology
+    signals = sum(1 for n in topo.nodes.values() if n.signal)
+    out_console.print(f"network of {line.name}: {len(topo.edges)} edges, {signals} signals, {len(topo.platforms)} platforms")
+    out_console.print(f"wrote {net.net_file}")
+    out_console.print(f"wrote {net.stations_file}")
+
+
+# ----------------------------------------------------------------------------------------------
+@cli.command("run")
+@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--timetable", required=True, help="Timetable name (routes/<line>/<name>.yaml) or path")
+@click.option("--regime", type=click.Choice(["fbs", "mb", "vc"]), required=True, help="Signalling regime")
+@click.option("--controller", default=None, help="VC controller (mpc, cbc, cbf-mpc, cbf-cbc, cbf-cruise); vc only")
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
+@click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step, s")
+@click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
+@click.option("--seed", type=int, default=42, show_default=True)
+def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, out: Path | None, step_length: float, block_length_m: float | None, seed: int) -> None:
+    """Run a timetable on a line under one regime; write trajectories, stop events and a summary."""
+    from vcsumo.line import load_line
+    from vcsumo.network import build_network
+    from vcsumo.plots import plot_run
+    from vcsumo.results import ResultsFolder, default_out
+    from vcsumo.simulation import Scenario, simulate
+    from vcsumo.timetable import load_timetable, plan_trains
+
+    if step_length <= 0 or step_length > 2:
+        raise VcsumoError(f"--step-length: {step_length} s is outside (0, 2] s")
+    line = load_line(line_spec)
+    tt, tt_path = load_timetable(timetable, line)
+    net = build_network(line, block_length_m)
+    trains = plan_trains(tt, tt_path, line, net.topology, dt=step_length)
+    driver = None
+    if regime == "vc":
+        from vcsumo.vc import make_vc_driver
+
+        driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed)
+    elif controller:
+        raise VcsumoError(f"--controller: only the vc regime takes a controller (regime is {regime})")
+    out = out or default_out("run", f"{line.name}-{tt.name}-{regime}")
+    with ResultsFolder(out, inputs={"line": line.path, "timetable": tt_path}, seed=seed,
+                       params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m}) as rf:
+        with _progress() as prog, _task(prog, f"{line.name} {tt.name} {regime}") as upd:
+            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver,
+                           min_safe_gap_m=driver.min_safe_gap_m if driver else 50.0)
+            res = simulate(scn, rf.path, upd)
+        plot_run(res.trajectories, rf.path / "time_distance.png", f"{line.name} {tt.name} {regime}")
+        if driver is not None:
+            driver.write_report(rf.path)
+            res.summary.update(driver.summary())
+            (rf.path / "summary.json").write_text(__import__("json").dumps(res.summary, indent=2))
+    s = res.summary
+    from vcsumo.units import format_clock
+
+    view = res.trains.copy()
+    view["departure"] = view["departure_s"].map(lambda x: format_clock(x) if x == x else "-")
+    view["arrival"] = view["arrival_s"].map(lambda x: format_clock(x) if x == x else "-")
+    view["run_min"] = (view["running_time_s"] / 60.0).round(1)
+    view["delay_s"] = view["arrival_delay_s"].map(lambda x: "-" if x is None or x != x else f"{x:+.0f}")
+    view["min_gap_m"] = view["min_gap_m"].map(lambda x: "-" if x is None or x != x else f"{x:.0f}")
+    _print_table(view, f"{line.name} / {tt.name} / {regime}",
+                 ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"])
+    out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {s['min_gap_m'] or float('nan'):.1f} m, "
+                      f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
+    out_console.print(f"wrote {out}")
+
+
+# ----------------------------------------------------------------------------------------------
+@cli.group("study")
+def study() -> None:
+    """Studies: headway, capacity, junction."""
+
+
+def _parse_points(points: str | None) -> list[float] | None:
+    if not points:
+        return None
+    try:
+        return [float(x) for x in points.split(",") if x.strip()]
+    except ValueError:
+        raise VcsumoError(f"--points: '{points}' is not a comma-separated list of km") from None
+
+
+@study.command("headway")
+@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--regime", type=click.Choice(["fbs", "mb", "both"]), default="both", show_default=True)
+@click.option("--train", "trains", multiple=True, help="Train type(s) (default: the line's default_train)")
+@click.option("--points", default=None, help="Measuring points, comma-separated km (default: the line file's)")
+@click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
+@click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step, s")
+@click.option("--trains-per-run", type=int, default=2, show_default=True, help="Trains released per probe (2 = blocking-time pair)")
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
+def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: str | None, block_length_m: float | None, step_length: float, trains_per_run: int, out: Path | None) -> None:
+    """Minimum headway by simulation vs blocking-time theory, per direction and measuring point."""
+    from vcsumo.line import load_line
+    from vcsumo.network import build_network
+    from vcsumo.results import ResultsFolder, default_out
+    from vcsumo.rolling_stock import load_rolling_stock
+    from vcsumo.studies.headway import run_headway_study
+
+    line = load_line(line_spec)
+    names = list(trains) or ([line.data.default_train] if line.data.default_train else [])
+    if not names:
+        raise VcsumoError(f"{line.path}: default_train: the line names no default train; pass --train")
+    stocks = [load_rolling_stock(n) for n in names]
+    if trains_per_run < 2:
+        raise VcsumoError("--trains-per-run: at least 2 trains are needed")
+    regimes = ["fbs", "mb"] if regime == "both" else [regime]
+    pts = _parse_points(points)
+    net = build_network(line, block_length_m)
+    out = out or default_out("headway", line.name)
+    with ResultsFolder(out, inputs={"line": line.path}, params={"regimes": regimes, "trains": names, "block_length_m": block_length_m, "step_length_s": step_length}) as rf:
+        with _progress() as prog:
+            def factory(desc: str):
+                task = prog.add_task(desc, total=1.0)
+                return lambda d, t: prog.update(task, completed=d / t if t else 1.0)
+
+            df = run_headway_study(line, net, stocks, regimes, rf.path, pts, step_s=step_length, n_trains=trains_per_run, progress_factory=factory)
+    _print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct", "speed_at_point_mps"])
+    out_console.print(f"wrote {out / 'headway.csv'}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``vcsumo`` console script."""
+    try:
+        cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
+    except VcsumoError as exc:
+        console.print(f"error: {exc}", highlight=False, markup=False, soft_wrap=True)
+        return 2
+    except click.exceptions.Abort:
+        console.print("aborted")
+        return 130
+    except click.exceptions.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except KeyboardInterrupt:
+        console.print("interrupted")
+        return 130
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Studies: functions from a study definition to a results folder (CSV + plots)."""

@@ -1,0 +1,232 @@
+"""Headway study: identical trains released as close as the regime allows, headway measured.
+
+For each direction, regime (fbs, mb) and train type:
+
+1. the unhindered running profile of one train from the start of the direction's main track
+   gives the speed at the release point (line file ``headway.release_km``; default: the track
+   start, from standstill); trains are released there with that speed (a flying start);
+2. identical trains are released at an interval h; the smallest h at which the follower is not
+   hindered anywhere up to a measuring point (never slower than the unhindered leader at the same
+   position, beyond 0.3 m/s or 0.5 %) is found by bisection (:mod:`vcsumo.studies.min_headway`);
+   the simulated minimum headway is the time between the two fronts passing the point in that
+   run (``headway_sim_s``; the release interval is ``release_interval_s``).  By default a pair
+   of trains is released (``n_trains=2``): blocking-time theory's headway is a property of two
+   consecutive trains, and with longer sequences a bigger bottleneck *downstream* of the point
+   spills back and shows up upstream (a flow effect of the downstream section, not of the point);
+3. beside it, the analytic headway of blocking-time theory (:mod:`vcsumo.blocking_time`) from the
+   same unhindered profile and the braking rule SUMO's driver uses: the largest blocking time met
+   between the release point and the measuring point.
+
+Writes ``headway.csv`` (one row per direction × regime × train × measuring point) and
+``headway.png``; each probe's SUMO run is kept under ``runs/`` only for the final (minimum) h.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from vcsumo.blocking_time import (
+    SUMO_MB_MARGIN_M,
+    BrakingRule,
+    fbs_blocking_times,
+    fbs_headway_at,
+    mb_headway_at,
+    mb_headway_profile,
+    sumo_reaction_time,
+)
+from vcsumo.errors import InputError, VcsumoError
+from vcsumo.line import Line
+from vcsumo.network import BuiltNetwork
+from vcsumo.rolling_stock import RollingStock
+from vcsumo.route_profile import RouteProfile
+from vcsumo.running_time import speed_at, unhindered_run
+from vcsumo.simulation import MeasuringPoint, Scenario, simulate
+from vcsumo.studies.min_headway import Probe, search_min_headway
+from vcsumo.timetable import PlannedTrain
+
+HEADWAY_COLUMNS = [
+    "line", "direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s",
+    "deviation_pct", "release_interval_s", "speed_at_point_mps", "critical_km", "block_length_m", "release_km", "release_speed_mps",
+    "hindrance_delay_s", "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "simulations",
+]
+
+
+@dataclass
+class HeadwayCase:
+    direction: str
+    regime: str
+    stock: RollingStock
+
+
+def signal_positions(net: BuiltNetwork, edges: list[str], profile: RouteProfile) -> list[float]:
+    """Route positions (m) of the rail signals along a route."""
+    topo = net.topology
+    first_nodes = {topo.edges[t.edges[0]].from_node for t in topo.tracks.values()}
+    out = []
+    for i, eid in enumerate(edges):
+        node = topo.nodes[topo.edges[eid].to_node]
+        if node.signal and node.id not in first_nodes and i < len(edges) - 1:
+            out.append(float(profile.starts_m[i] + profile.lengths_m[i]))
+    return out
+
+
+def measuring_points(line: Line, points_km: list[float] | None) -> list[float]:
+    if points_km:
+        return list(points_km)
+    if line.data.headway and line.data.headway.measuring_points_km:
+        return list(line.data.headway.measuring_points_km)
+    lo, hi = line.data.km_start, line.data.km_end
+    return [lo + f * (hi - lo) for f in (0.25, 0.5, 0.75)]
+
+
+def release_km(line: Line, direction: str) -> float:
+    d = line.data
+    if d.headway and direction in d.headway.release_km:
+        return d.headway.release_km[direction]
+    return d.km_start if direction == "up" else d.km_end
+
+
+def prepare_case(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float, n_trains: int):
+    """Route, release state, planned trains and the unhindered run from the release point."""
+    topo = net.topology
+    track = topo.track_for("main", direction)
+    full = RouteProfile.from_edges(topo, track.edges)
+    p = stock.params()
+    rel_km = release_km(line, direction)
+    s_rel_full = full.s_of("main", rel_km)
+    start = min(stock.length_m + 1.0, full.length_m)
+    if s_rel_full <= start + 1.0:
+        v0 = 0.0
+        s_rel_full = start
+    else:
+        run0 = unhindered_run(p, full, dt=step_s, s0=start, end_s=s_rel_full + 1.0, stop_at_end=False)
+        v0 = speed_at(run0, s_rel_full)
+        if math.isnan(v0):  # pragma: no cover
+            raise VcsumoError(f"train {stock.name} cannot reach the release point {rel_km} km")
+    i0 = full.index_at(s_rel_full)
+    edges = track.edges[i0:]
+    prof = RouteProfile.from_edges(topo, edges)
+    pos0 = s_rel_full - float(full.starts_m[i0])
+    trains = [
+        PlannedTrain(
+            id=f"{direction}_{stock.name}_{k:02d}", service="headway", stock=stock, edges=edges, profile=prof, depart_s=0.0,
+            depart_pos_m=pos0, depart_speed_mps=v0, direction=direction, end_pos_m=None, start_s_m=pos0,
+        )
+        for k in range(n_trains)
+    ]
+    run = unhindered_run(p, prof, dt=step_s, s0=pos0, v0=v0, stop_at_end=False)
+    return trains, prof, run, rel_km, v0
+
+
+def analytic_headways(net: BuiltNetwork, trains: list[PlannedTrain], prof: RouteProfile, run: pd.DataFrame, regime: str, stock: RollingStock, step_s: float) -> Callable[[float], tuple[float, float]]:
+    """Function x_m -> (analytic headway s, critical position m) for the regime."""
+    rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
+    if regime == "fbs":
+        blocks = fbs_blocking_times(run, signal_positions(net, trains[0].edges, prof), prof.length_m, stock.length_m, rule)
+        return lambda x: fbs_headway_at(blocks, x)
+    profile = mb_headway_profile(run, stock.length_m, rule, SUMO_MB_MARGIN_M)
+    return lambda x: mb_headway_at(profile, x)
+
+
+def run_headway_case(
+    line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, regime: str, out: Path, points_km: list[float],
+    step_s: float = 0.5, n_trains: int = 2, tolerance_s: float = 2.0, resolution_s: float = 0.25,
+    progress: Callable[[float, float], None] | None = None,
+) -> list[dict]:
+    """Bisection on the release interval for one case; one row per measuring point."""
+    trains0, prof, run, rel_km, v0 = prepare_case(line, net, stock, direction, step_s, n_trains)
+    pts = []
+    for k in points_km:
+        try:
+            x = prof.s_of("main", k)
+        except KeyError:
+            continue
+        if x > trains0[0].start_s_m + 1.0:
+            pts.append((f"km{k:g}", k, x))
+    if not pts:
+        return []
+    analytic = analytic_headways(net, trains0, prof, run, regime, stock, step_s)
+    guesses = {lab: analytic(x)[0] for lab, _, x in pts}
+    # shorten the simulated route: last measuring point + braking distance + train + 2 km
+    vmax = prof.max_speed()
+    s_end = min(prof.length_m, max(x for _, _, x in pts) + vmax * vmax / (2 * stock.service_brake_decel_mps2) + stock.length_m + 2000.0)
+    i_end = prof.index_at(s_end)
+    edges = trains0[0].edges[: i_end + 1]
+    cut = RouteProfile.from_edges(net.topology, edges)
+    end_pos = min(s_end - float(cut.starts_m[-1]), float(cut.lengths_m[-1]))
+    mps = [MeasuringPoint(lab, "main", k) for lab, k, _ in pts]
+    probes_run = [0]
+
+    def run_at(h: float) -> Probe:
+        trains = [
+            replace(t, depart_s=k * h, edges=edges, profile=cut, end_pos_m=end_pos, stop_at_end=False)
+            for k, t in enumerate(trains0)
+        ]
+        probes_run[0] += 1
+        sub = out / "probes" / f"h{h:08.3f}"
+        sim = simulate(Scenario(line, net, trains, regime, step_length_s=step_s, measuring_points=mps, record_period_s=3600.0, full_outputs=False, trace_speeds=True), sub)
+        pr = Probe(h, sim.passages, {t.id: t.depart_s for t in trains}, sim.summary)
+        order = [t.id for t in trains]
+        pr.compute_delays([m.label for m in mps], order)
+        start_delays = dict(zip(sim.trains.train, sim.trains.departure_delay_s.fillna(0.0)))
+        pr.compute_speed_deficits({lab: x for lab, _, x in pts}, sim.speed_traces, order, start_delays)
+        return pr
+
+    found = search_min_headway(run_at, [lab for lab, _, _ in pts], guesses, tolerance_s=tolerance_s, resolution_s=resolution_s)
+    rows = []
+    for lab, k, x in pts:
+        h_rel, pr = found[lab]
+        times = np.sort(pr.passages[pr.passages.measuring_point == lab]["time_s"].to_numpy())
+        h_sim = float(np.median(np.diff(times))) if len(times) >= 2 else math.nan
+        h_an, crit = analytic(x)
+        rows.append({
+            "line": line.name, "direction": direction, "regime": regime, "train": stock.name, "measuring_point_km": k,
+            "headway_sim_s": round(h_sim, 2), "headway_analytic_s": round(h_an, 2), "release_interval_s": round(h_rel, 2),
+            "deviation_pct": round(100.0 * (h_sim - h_an) / h_an, 2) if h_an and not math.isnan(h_sim) else math.nan,
+            "speed_at_point_mps": round(speed_at(run, x), 2), "critical_km": round(prof.km_at(crit)[1], 3) if not math.isnan(crit) else math.nan,
+            "block_length_m": net.topology.block_length_m if regime == "fbs" else math.nan,
+            "release_km": rel_km, "release_speed_mps": round(v0, 2), "hindrance_delay_s": round(pr.delays.get(lab, math.nan), 2),
+            "min_gap_m": pr.summary["min_gap_m"], "gap_violations": pr.summary["gap_violations"],
+            "collisions": pr.summary["collisions"], "emergency_brakes": pr.summary["emergency_brakes"], "simulations": probes_run[0],
+        })
+        if progress:
+            progress(len(rows), len(pts))
+    # keep the SUMO outputs of the probes at the reported headways only
+    keep = {f"h{found[lab][0]:08.3f}" for lab, _, _ in pts if not math.isnan(found[lab][0])}
+    probes_dir = out / "probes"
+    if probes_dir.is_dir():
+        import shutil
+
+        for d in probes_dir.iterdir():
+            if d.name not in keep:
+                shutil.rmtree(d, ignore_errors=True)
+    return rows
+
+
+def run_headway_study(
+    line: Line, net: BuiltNetwork, stocks: list[RollingStock], regimes: list[str], out: Path, points_km: list[float] | None = None,
+    step_s: float = 0.5, n_trains: int = 2, tolerance_s: float = 2.0, directions: tuple[str, ...] = ("up", "down"), progress_factory=None,
+) -> pd.DataFrame:
+    """Every direction × regime × train; writes ``headway.csv`` and ``headway.png`` into ``out``."""
+    for r in regimes:
+        if r not in ("fbs", "mb"):
+            raise InputError(None, "--regime", f"headway study supports fbs and mb, not '{r}'")
+    pts = measuring_points(line, points_km)
+    rows: list[dict] = []
+    cases = [(d, r, st) for d in directions for r in regimes for st in stocks]
+    for d, r, st in cases:
+        sub = out / "runs" / f"{d}_{r}_{st.name}"
+        prog = progress_factory(f"{d} {r} {st.name}") if progress_factory else None
+        rows += run_headway_case(line, net, st, d, r, sub, pts, step_s=step_s, n_trains=n_trains, tolerance_s=tolerance_s, progress=prog)
+    df = pd.DataFrame(rows, columns=HEADWAY_COLUMNS)
+    df.to_csv(out / "headway.csv", index=False)
+    from vcsumo.plots import plot_headway
+
+    plot_headway(df, out / "headway.png")
+    return df
