@@ -21,7 +21,7 @@ Conventions
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
@@ -29,6 +29,9 @@ from vcsumo.config import StrictModel, load_model
 from vcsumo.errors import InputError
 
 TrackLayout = Literal["double", "single"]
+MAX_LINE_KM = 2000.0
+"""Longest line (or branch) vcsumo builds, km."""
+Km = Annotated[float, Field(ge=-100000.0, le=100000.0, allow_inf_nan=False)]
 
 
 class Station(StrictModel):
@@ -36,32 +39,32 @@ class Station(StrictModel):
 
     id: str = Field(description="Short identifier used by timetables, e.g. 'FIRI'", pattern=r"^[A-Za-z][A-Za-z0-9_\-]*$")
     name: str = Field(description="Full station name")
-    km: float = Field(description="Chainage of the platform centre, km")
-    platform_length_m: float = Field(gt=0, description="Usable platform length, m")
-    dwell_s: float = Field(default=60.0, ge=0, description="Default dwell time of a stopping train, s")
+    km: Km = Field(description="Chainage of the platform centre, km")
+    platform_length_m: float = Field(gt=0, le=5000, description="Usable platform length, m")
+    dwell_s: float = Field(default=60.0, ge=0, le=86400, description="Default dwell time of a stopping train, s")
 
 
 class SpeedRange(StrictModel):
     """A speed limit over a km range (both directions)."""
 
-    from_km: float = Field(description="Start of the range, km")
-    to_km: float = Field(description="End of the range, km")
+    from_km: Km = Field(description="Start of the range, km")
+    to_km: Km = Field(description="End of the range, km")
     speed_kmh: float = Field(gt=0, le=600, description="Maximum permitted speed, km/h")
 
 
 class GradientRange(StrictModel):
     """A constant gradient over a km range."""
 
-    from_km: float = Field(description="Start of the range, km")
-    to_km: float = Field(description="End of the range, km")
+    from_km: Km = Field(description="Start of the range, km")
+    to_km: Km = Field(description="End of the range, km")
     permille: float = Field(ge=-80, le=80, description="Gradient, ‰, positive rising towards increasing km")
 
 
 class CurveRange(StrictModel):
     """A curve of constant radius over a km range."""
 
-    from_km: float = Field(description="Start of the curve, km")
-    to_km: float = Field(description="End of the curve, km")
+    from_km: Km = Field(description="Start of the curve, km")
+    to_km: Km = Field(description="End of the curve, km")
     radius_m: float = Field(gt=50, description="Curve radius, m")
 
 
@@ -69,17 +72,17 @@ class Tunnel(StrictModel):
     """A tunnel: aerodynamic drag is multiplied by ``aero_factor`` inside (Felez eq. 1b, T_f)."""
 
     name: str = Field(description="Tunnel name")
-    from_km: float = Field(description="Portal at the lower chainage, km")
-    to_km: float = Field(description="Portal at the higher chainage, km")
+    from_km: Km = Field(description="Portal at the lower chainage, km")
+    to_km: Km = Field(description="Portal at the higher chainage, km")
     aero_factor: float = Field(default=1.5, ge=1.0, le=4.0, description="Tunnel factor T_f on the quadratic (aerodynamic) resistance term, -")
 
 
 class Signalling(StrictModel):
     """Fixed-block signalling: regular block markers or explicit signal positions."""
 
-    block_length_m: float | None = Field(default=None, gt=50, description="Regular block length, m (markers from the section start)")
-    signals_km: list[float] | None = Field(default=None, description="Explicit block-marker positions, km (both directions)")
-    min_block_length_m: float = Field(default=100.0, ge=0, description="Regular markers closer than this to a station or junction signal are dropped, m")
+    block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Regular block length, m (markers from the section start)")
+    signals_km: list[Km] | None = Field(default=None, description="Explicit block-marker positions, km (both directions)")
+    min_block_length_m: float = Field(default=100.0, ge=0, le=10000, description="Regular markers closer than this to a station or junction signal are dropped, m")
 
     @model_validator(mode="after")
     def _one_way(self) -> "Signalling":
@@ -93,8 +96,8 @@ class Signalling(StrictModel):
 class HeadwaySettings(StrictModel):
     """Where the headway study releases trains and where it measures."""
 
-    measuring_points_km: list[float] = Field(min_length=1, description="Measuring points on the main line, km")
-    release_km: dict[Literal["up", "down"], float] = Field(
+    measuring_points_km: list[Km] = Field(min_length=1, description="Measuring points on the main line, km")
+    release_km: dict[Literal["up", "down"], Km] = Field(
         default_factory=dict,
         description="Per direction, where trains are released with a flying start at their unhindered speed, km (default: the line end)",
     )
@@ -107,9 +110,9 @@ class Branch(StrictModel):
     name: str = Field(description="Name of the branch")
     junction_name: str = Field(default="", description="Name of the junction (Bivio ...)")
     end_name: str = Field(default="", description="Name of the place at the far end of the branch")
-    junction_km: float = Field(description="Main-line chainage of the junction, km")
+    junction_km: Km = Field(description="Main-line chainage of the junction, km")
     leaves_towards: Literal["start", "end"] = Field(description="The branch runs alongside the main line towards its start or its end")
-    length_m: float = Field(gt=0, description="Length of the branch from the junction to its far end, m")
+    length_m: float = Field(gt=0, le=MAX_LINE_KM * 1000, description="Length of the branch from the junction to its far end, m")
     speed_kmh: float = Field(gt=0, le=600, description="Line speed on the branch, km/h")
     diverging_speed_kmh: float = Field(gt=0, le=600, description="Speed through the turnout at the junction, km/h")
     tracks: TrackLayout | None = Field(default=None, description="double or single; default: as the main line")
@@ -118,7 +121,7 @@ class Branch(StrictModel):
     curves: list[CurveRange] = Field(default_factory=list, description="Curves in branch km")
     tunnels: list[Tunnel] = Field(default_factory=list, description="Tunnels in branch km")
     stations: list[Station] = Field(default_factory=list, description="Stations in branch km")
-    block_length_m: float | None = Field(default=None, gt=50, description="Block length on the branch, m (default: as the main line)")
+    block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Block length on the branch, m (default: as the main line)")
 
 
 class LineFile(StrictModel):
@@ -128,10 +131,10 @@ class LineFile(StrictModel):
     title: str = Field(default="", description="Human-readable title")
     notes: str = Field(default="", description="Free text: assumptions, caveats")
     sources: dict[str, str] = Field(default_factory=dict, description="Source key -> citation or URL")
-    km_start: float = Field(description="Chainage of the start of the main line, km")
-    km_end: float = Field(description="Chainage of the end of the main line, km")
+    km_start: Km = Field(description="Chainage of the start of the main line, km")
+    km_end: Km = Field(description="Chainage of the end of the main line, km")
     tracks: TrackLayout = Field(default="double", description="double (one track per direction) or single (both directions)")
-    start_elevation_m: float = Field(default=0.0, description="Elevation at km_start, m")
+    start_elevation_m: float = Field(default=0.0, ge=-1000, le=9000, allow_inf_nan=False, description="Elevation at km_start, m")
     line_speed_kmh: float = Field(gt=0, le=600, description="Line speed where no restriction applies, km/h")
     directions: dict[Literal["up", "down"], str] = Field(default_factory=dict, description="Labels of the directions")
     default_train: str | None = Field(default=None, description="Rolling stock used when a study names none")
@@ -185,6 +188,9 @@ def check_line(line: LineFile) -> list[tuple[str, str]]:
     lo, hi = line.km_start, line.km_end
     if hi <= lo:
         p.append(("km_end", f"km_end ({hi}) must be greater than km_start ({lo})"))
+        return p
+    if hi - lo > MAX_LINE_KM:
+        p.append(("km_end", f"line length {hi - lo:g} km exceeds {MAX_LINE_KM:g} km"))
         return p
     p += _check_ranges(line.speed_limits, "speed_limits", lo, hi)
     p += _check_ranges(line.gradients, "gradients", lo, hi)

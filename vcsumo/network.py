@@ -28,7 +28,7 @@ from vcsumo.line import Line
 from vcsumo.sumo_paths import sumo_binary, sumo_version
 from vcsumo.topology import Topology, build_topology
 
-BUILDER_VERSION = "3"
+BUILDER_VERSION = "5"
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def build_network(line: Line, block_length_m: float | None = None, force: bool =
             sumo_binary("netconvert"),
             "-n", str(tmp / "line.nod.xml"), "-e", str(tmp / "line.edg.xml"), "-x", str(tmp / "line.con.xml"),
             "-o", str(tmp / "line.net.xml"), "--no-turnarounds", "true", "--offset.disable-normalization", "true",
-            "--geometry.min-dist", "0", "--junctions.corner-detail", "0", "--no-warnings", "true",
+            "--geometry.min-dist", "0", "--junctions.corner-detail", "0", "--no-warnings", "true", "--precision", "4",
         ]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0 or not (tmp / "line.net.xml").is_file():
@@ -103,10 +103,10 @@ def build_network(line: Line, block_length_m: float | None = None, force: bool =
 def write_plain_xml(topo: Topology, folder: Path) -> None:
     """Write the plain-XML inputs of netconvert and the stations additional file."""
     folder.mkdir(parents=True, exist_ok=True)
-    first_nodes = {tr.edges and topo.edges[tr.edges[0]].from_node for tr in topo.tracks.values()}
+    signals = topo.signal_nodes()
     nod = ["<nodes>"]
     for n in topo.nodes.values():
-        kind = "rail_signal" if n.signal and n.id not in first_nodes else "priority"
+        kind = "rail_signal" if n.id in signals else "priority"
         nod.append(f'  <node id="{n.id}" x="{n.x:.3f}" y="{n.y:.3f}" z="{n.z:.4f}" type="{kind}"/>')
     nod.append("</nodes>")
     (folder / "line.nod.xml").write_text("\n".join(nod) + "\n")

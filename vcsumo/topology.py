@@ -143,6 +143,16 @@ class Topology:
                 return eid, min(max(pos, 0.0), e.length_m)
         raise KeyError(f"{km} km is not on track {tr.id}")
 
+    def entry_nodes(self) -> set[str]:
+        """Nodes no edge leads into (track starts): SUMO would turn a signal there into a dead end."""
+        targets = {e.to_node for e in self.edges.values()}
+        return {e.from_node for e in self.edges.values() if e.from_node not in targets}
+
+    def signal_nodes(self) -> set[str]:
+        """Nodes that become SUMO rail signals."""
+        entry = self.entry_nodes()
+        return {n.id for n in self.nodes.values() if n.signal and n.id not in entry}
+
     def platforms_of(self, station_id: str) -> list[Platform]:
         return [p for p in self.platforms.values() if p.station_id == station_id]
 

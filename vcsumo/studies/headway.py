@@ -67,11 +67,11 @@ class HeadwayCase:
 def signal_positions(net: BuiltNetwork, edges: list[str], profile: RouteProfile) -> list[float]:
     """Route positions (m) of the rail signals along a route."""
     topo = net.topology
-    first_nodes = {topo.edges[t.edges[0]].from_node for t in topo.tracks.values()}
+    signals = topo.signal_nodes()
     out = []
     for i, eid in enumerate(edges):
         node = topo.nodes[topo.edges[eid].to_node]
-        if node.signal and node.id not in first_nodes and i < len(edges) - 1:
+        if node.id in signals and i < len(edges) - 1:
             out.append(float(profile.starts_m[i] + profile.lengths_m[i]))
     return out
 
