@@ -1,0 +1,616 @@
+"""Consensus-based control (CBC) of a virtually coupled convoy (Wu et al. survey §IV.A).
+
+Model.  The follower is the third-order "position–velocity–acceleration" model of eq. 2.7–2.8,
+ẋ = v, v̇ = a, τ ȧ = u − a, where u is the desired acceleration and τ the traction lag (eq. 1c of
+vcsumo's train model).  The desired acceleration is turned into a traction/brake force with the
+shared train model (eq. 2.2 / vcsumo eq. 1b inverted): F = M·ρ·u + R(v) + M·g·i  — the low-level
+step the survey describes after eq. 2.4 ("once u is determined, the actual T/B force can be
+calculated based on the pre-saved track information and resistance characteristics").
+
+Law (``law: consensus``), for follower i with neighbours j ∈ 𝒩_i ∪ {0} (weights a_ij, eq. 4.1)::
+
+    e^x_ij = x_i − x̂_j + δ_ij          δ_ij = desired x_j − x_i (gaps of eq. 3.1, lengths, eq. 3.10)
+    e^v_ij = v_i − v_j + δ̇_ij          e^a_ij = a_i − a_j + δ̈_ij
+    u_i = c_ff·Σ_j w̄_ij (a_j − δ̈_ij)                          (neighbour acceleration feed-forward)
+          − Σ_j w_ij sat_Δ(k_x e^x_ij + k_v e^v_ij + k_a e^a_ij)  (eq. 4.1, K = [k_x, k_v, k_a]; eq. 4.4 Δ)
+          − k_v0 (v_i − v_0) − k_a0 a_i                           (eq. 4.3 / 4.5 reference-speed damping)
+
+with w_ij = a_ij / Σ_j a_ij (the normalisation of eq. 4.3; ``normalize: false`` gives eq. 4.1's
+plain a_ij), w̄_ij = a_ij / Σ_j a_ij, and x̂_j the neighbour's position *at the message's time
+stamp* plus the eq. 4.3 delay compensation τ_ij·v_0 (τ_ij = t − sent time: the age of what the
+channel delivered).  sat_Δ (eq. 4.4) is applied per link when ``link_bound_mps2`` is set; the
+total is always saturated to the train's traction/brake envelope (eq. 4.4's input bound, here the
+speed-dependent limits of ``vcsumo.dynamics.traction_limit``/``brake_force_limit``, survey Fig. 2(a)).
+
+Variants (predecessor–follower laws, ``topology: PF``):
+
+* ``liu_tanh`` (eq. 4.10):  u = k1·e^sp − k2·[k3 + k4·tanh(k5·d_{t−τ} − k6)]
+* ``zhou_tanh`` (eq. 4.11): u = k1·tanh(e^sp/ℓ) − k2·tanh(e^sv/ν) + k3·v/(v − v_max)
+
+(signs written for vcsumo's frame, where a gap larger than the reference must make the follower
+accelerate and the speed-limit term must brake; see the notes on those functions).
+
+Linear analysis.  :func:`closed_loop_stable`, :func:`delay_margin_s` and :func:`string_gain`
+evaluate the linearised closed loop (eq. 4.2 with the T2T delay of eq. 4.3) in the frequency
+domain; the tests use them to justify the delay bound and the string-stability condition.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, MutableMapping
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from vcsumo.config import StrictModel, load_model
+from vcsumo.control.base import Command, Message, Observation
+from vcsumo.control.gap_reference import GapReference, GapSample, SteadyGap
+from vcsumo.control.topology_graph import ConvoyGraph, TopologyName, convoy_graph
+from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance, traction_limit
+from vcsumo.errors import InputError
+
+# ---------------------------------------------------------------------------------------------
+# Parameters
+
+
+class LiuParams(StrictModel):
+    """Gains of eq. 4.10 (Liu [76])."""
+
+    k1_per_s2: float = Field(default=0.06, gt=0, description="Gain on the current spacing error, 1/s²")
+    k2_mps2: float = Field(default=0.5, ge=0, description="Gain of the delayed-distance term, m/s²")
+    k3: float | None = Field(default=None, description="Offset (none: chosen so the bracket vanishes at the reference gap)")
+    k4: float = Field(default=1.0, description="Amplitude of the tanh term, -")
+    k5_per_m: float = Field(default=0.02, gt=0, description="Slope of the tanh term, 1/m")
+    k6: float | None = Field(default=None, description="Shift of the tanh term, - (none: k5·d^de, centred on the reference)")
+    k_rel_speed_per_s: float = Field(default=0.6, ge=0, description="Relative-speed damping, 1/s (0 in the survey's eq. 4.10)")
+
+
+class ZhouParams(StrictModel):
+    """Gains of eq. 4.11 (Zhou et al. [77])."""
+
+    k1_mps2: float = Field(default=0.6, gt=0, description="Spacing-error gain, m/s²")
+    k2_mps2: float = Field(default=0.6, gt=0, description="Speed-error gain, m/s²")
+    k3_mps2: float = Field(default=0.002, ge=0, description="Speed-limit barrier gain, m/s²")
+    spacing_scale_m: float = Field(default=15.0, gt=0, description="ℓ: e^sp/ℓ inside tanh, m")
+    speed_scale_mps: float = Field(default=1.0, gt=0, description="ν: e^sv/ν inside tanh, m/s")
+
+
+class CbcParams(StrictModel):
+    """Consensus-based controller settings (``controllers/cbc.yaml``)."""
+
+    law: Literal["consensus", "liu_tanh", "zhou_tanh"] = Field(default="consensus", description="eq. 4.1–4.5 (consensus), 4.10 or 4.11")
+    topology: TopologyName = Field(default="PF", description="T2T communication topology (PF, PLF, BD, BDL, TPF)")
+    gap: SteadyGap = Field(default_factory=SteadyGap, description="Steady gap reference (eq. 3.1 + time headway)")
+    k_pos_per_s2: float = Field(default=0.04, gt=0, description="k_x: position-disagreement gain, 1/s²")
+    k_vel_per_s: float = Field(default=0.8, ge=0, description="k_v: speed-disagreement gain, 1/s")
+    k_acc: float = Field(default=0.5, ge=0, description="k_a: acceleration-disagreement gain (third-order eq. 4.1), -")
+    k_ref_vel_per_s: float = Field(default=0.0, ge=0, description="k_v0: damping towards the reference speed v_0 (eq. 4.3 k2, eq. 4.5 k1), 1/s")
+    k_own_acc: float = Field(default=0.0, ge=0, description="k_a0: own-acceleration damping (eq. 4.3 k3), -")
+    accel_feedforward: float = Field(default=0.5, ge=0, le=1, description="c_ff: weight of the neighbours' acceleration feed-forward, -")
+    normalize: bool = Field(default=True, description="Divide by Σ a_ij (eq. 4.3); false: plain eq. 4.1")
+    delay_compensation: Literal["none", "reference", "sender"] = Field(
+        default="reference", description="Add τ_ij·v_0 (reference, eq. 4.3), τ_ij·v_j (sender) or nothing to delayed positions"
+    )
+    link_bound_mps2: float | None = Field(default=None, gt=0, description="Δ of eq. 4.4: per-link saturation, m/s² (none: linear)")
+    max_message_age_s: float = Field(default=5.0, gt=0, description="Older messages are ignored (link treated as lost), s")
+    speed_limit_gain_per_s: float | None = Field(default=0.5, gt=0, description="u ≤ k·(v_lim − v) keeps the line/train speed limit (none: off), 1/s")
+    leader_speed_gain_per_s: float = Field(default=0.3, gt=0, description="P gain when this controller drives a convoy leader, 1/s")
+    liu: LiuParams = Field(default_factory=LiuParams)
+    zhou: ZhouParams = Field(default_factory=ZhouParams)
+
+    @model_validator(mode="after")
+    def _pf_only(self) -> "CbcParams":
+        if self.law != "consensus" and self.topology != "PF":
+            raise ValueError(f"law '{self.law}' is a predecessor-follower law (eq. 4.10/4.11): topology must be PF")
+        return self
+
+
+def controllers_dir() -> Path:
+    from vcsumo.line import project_root
+
+    return project_root() / "controllers"
+
+
+def load_cbc_params(spec: str | Path = "cbc") -> CbcParams:
+    """Load CBC settings by name (``cbc`` → ``controllers/cbc.yaml``) or by path to a YAML file."""
+    path = Path(spec)
+    if path.suffix not in (".yaml", ".yml"):
+        path = controllers_dir() / f"{spec}.yaml"
+        if not path.is_file():
+            raise InputError(None, "controller", f"unknown controller settings '{spec}' (no {path})")
+    return load_model(CbcParams, path)
+
+
+# ---------------------------------------------------------------------------------------------
+# Low level: acceleration → force (inverse of eq. 1b / survey eq. 2.2)
+
+
+def force_for_acceleration(p: TrainParams, speed_mps: float, accel_mps2: float, gradient: float = 0.0, tunnel_factor: float = 1.0) -> float:
+    """Traction/brake force u giving dv/dt = ``accel_mps2``: M·ρ·a + R(v) + M·g·i (inverse of eq. 1b), N."""
+    return float(p.mass_kg * p.rotating_mass_factor * accel_mps2 + running_resistance(p, speed_mps, tunnel_factor) + gradient_force(p, gradient))
+
+
+def acceleration_envelope(p: TrainParams, speed_mps: float, gradient: float = 0.0, tunnel_factor: float = 1.0) -> tuple[float, float]:
+    """(lowest, highest) reachable dv/dt at full brake / full traction (eq. 4a, 4b through eq. 1b), m/s²."""
+    lo = float(acceleration(p, speed_mps, -brake_force_limit(p, speed_mps), gradient, tunnel_factor))
+    hi = float(acceleration(p, speed_mps, traction_limit(p, speed_mps), gradient, tunnel_factor))
+    return lo, hi
+
+
+def sat(x: float, bound: float) -> float:
+    """sat_Δ(x) = sgn(x)·Δ for |x| > Δ, x otherwise (eq. 4.4)."""
+    return max(-bound, min(bound, x))
+
+
+# ---------------------------------------------------------------------------------------------
+# The controller
+
+
+def _age_s(obs: Observation, m: Message) -> float:
+    """τ_ij of eq. 4.3: how old the delivered state is (its time stamp, else the sending time), s."""
+    stamp = m.state.time_s if math.isfinite(m.state.time_s) else m.sent_time_s
+    return max(0.0, obs.time_s - stamp)
+
+
+@dataclass
+class _Link:
+    msg: Message
+    index: int
+    weight: float
+    age_s: float
+
+
+class ConsensusController:
+    """Consensus-based VC controller: ``make_step(obs) -> Command`` (force in N).
+
+    ``gap_schedule`` maps train ids to a :class:`~vcsumo.control.gap_reference.GapReference`
+    (a merge/split transition, eq. 3.2–3.6) overriding ``params.gap`` for that train's gap.  Give
+    the *same* mapping object to every controller of a convoy so that multi-hop offsets (PLF,
+    TPF, BD) agree; it may be mutated while running (start a merge by inserting a transition).
+    """
+
+    def __init__(self, params: CbcParams | None = None, gap_schedule: MutableMapping[str, GapReference] | None = None):
+        self.params = params or CbcParams()
+        self.gap_schedule: MutableMapping[str, GapReference] = gap_schedule if gap_schedule is not None else {}
+        self._lengths: dict[str, float] = {}
+        self._own_history: deque[tuple[float, float]] = deque()
+        self._last_pos: dict[str, float] = {}
+        self._neighbours: dict[tuple[int, int], dict[int, float]] = {}
+
+    @classmethod
+    def from_yaml(cls, spec: str | Path = "cbc", gap_schedule: MutableMapping[str, GapReference] | None = None) -> "ConsensusController":
+        return cls(load_cbc_params(spec), gap_schedule)
+
+    # -----------------------------------------------------------------------------------------
+    def make_step(self, obs: Observation) -> Command:
+        prm = self.params
+        ego = obs.ego
+        p = obs.params
+        grad = obs.profile.mean_gradient(ego.position_m, p.length_m)
+        tf = obs.profile.tunnel_factor_at(ego.position_m)
+        self._remember(obs)
+        convoy = tuple(obs.convoy)
+        if obs.ego_id not in convoy or convoy.index(obs.ego_id) == 0:
+            return self._leader_step(obs, grad, tf)
+        i = convoy.index(obs.ego_id)
+        if prm.law == "consensus":
+            u, info = self._consensus(obs, convoy, i)
+        else:
+            u, info = self._predecessor_law(obs, convoy, i)
+        return self._to_command(obs, u, info, grad, tf)
+
+    # -----------------------------------------------------------------------------------------
+    def _remember(self, obs: Observation) -> None:
+        for m in obs.received.values():
+            self._lengths[m.sender] = m.length_m
+            self._last_pos[m.sender] = m.state.position_m
+        h = self._own_history
+        h.append((obs.time_s, obs.ego.position_m))
+        horizon = self.params.max_message_age_s + 2 * obs.step_s
+        while h and h[0][0] < obs.time_s - horizon:
+            h.popleft()
+
+    def _length(self, train: str, obs: Observation) -> float:
+        if train == obs.ego_id:
+            return obs.params.length_m
+        return self._lengths.get(train, obs.params.length_m)  # homogeneous assumption until a message arrives
+
+    def _fresh(self, obs: Observation, train: str) -> Message | None:
+        m = obs.received.get(train)
+        if m is None or _age_s(obs, m) > self.params.max_message_age_s:
+            return None
+        return m
+
+    def _gap_sample(self, obs: Observation, convoy: tuple[str, ...], m: int, own_index: int) -> GapSample:
+        """Reference gap of train m behind m−1, evaluated with the ego's speed (consensus value)."""
+        ref: GapReference = self.gap_schedule.get(convoy[m], self.params.gap)
+        v = obs.ego.speed_mps
+        if m == own_index:
+            pm = self._fresh(obs, convoy[m - 1])
+            v_pred = pm.state.speed_mps if pm is not None else v
+            return ref.evaluate(obs.time_s, obs.ego.position_m, v, v_pred)
+        x_m = self._last_pos.get(convoy[m], obs.ego.position_m)
+        return ref.evaluate(obs.time_s, x_m, v, v)
+
+    def _offset(self, obs: Observation, convoy: tuple[str, ...], i: int, j: int, gaps: dict[int, GapSample]) -> tuple[float, float, float]:
+        """δ_ij = desired x_j − x_i and its transitional rate/acceleration (eq. 3.10 over the hops i→j)."""
+        lo, hi, sign = (j + 1, i, 1.0) if j < i else (i + 1, j, -1.0)
+        d = r = a = 0.0
+        for m in range(lo, hi + 1):
+            g = gaps.get(m)
+            if g is None:
+                g = gaps[m] = self._gap_sample(obs, convoy, m, i)
+            d += g.gap_m + self._length(convoy[m - 1], obs)
+            r += g.rate_mps
+            a += g.accel_mps2
+        return sign * d, sign * r, sign * a
+
+    def _reference_speed(self, obs: Observation, convoy: tuple[str, ...], links: list[_Link]) -> float:
+        """v_0 of eq. 4.3: the leader's reported speed, else the weighted mean of the neighbours' speeds (else own)."""
+        lead = self._fresh(obs, convoy[0])
+        if lead is not None:
+            return lead.state.speed_mps
+        if links:
+            w = sum(lk.weight for lk in links)
+            return sum(lk.weight * lk.msg.state.speed_mps for lk in links) / w
+        return obs.ego.speed_mps
+
+    def _consensus(self, obs: Observation, convoy: tuple[str, ...], i: int) -> tuple[float, dict[str, Any]]:
+        prm = self.params
+        key = (len(convoy), i)
+        nbrs = self._neighbours.get(key)
+        if nbrs is None:
+            nbrs = self._neighbours[key] = convoy_graph(prm.topology, len(convoy)).neighbours(i)
+        links: list[_Link] = []
+        for j, a_ij in nbrs.items():
+            m = self._fresh(obs, convoy[j])
+            if m is not None:
+                links.append(_Link(m, j, a_ij, _age_s(obs, m)))
+        gaps: dict[int, GapSample] = {i: self._gap_sample(obs, convoy, i, i)}
+        info: dict[str, Any] = {"gap_ref_m": gaps[i].gap_m, "links": len(links)}
+        if not links:
+            return self._fallback(obs, gaps[i]), info | {"fallback": True}
+        v0 = self._reference_speed(obs, convoy, links)
+        x_i, v_i, a_i = obs.ego.position_m, obs.ego.speed_mps, obs.ego.accel_mps2
+        eta = sum(lk.weight for lk in links)
+        fb = ff = 0.0
+        max_age = 0.0
+        for lk in links:
+            st = lk.msg.state
+            delta, d_rate, d_acc = self._offset(obs, convoy, i, lk.index, gaps)
+            if prm.delay_compensation == "reference":
+                x_hat = st.position_m + lk.age_s * v0  # eq. 4.3: + τ_ij·v_0
+            elif prm.delay_compensation == "sender":
+                x_hat = st.position_m + lk.age_s * st.speed_mps
+            else:
+                x_hat = st.position_m
+            e_x = x_i - x_hat + delta
+            e_v = v_i - st.speed_mps + d_rate
+            e_a = a_i - st.accel_mps2 + d_acc
+            term = -(prm.k_pos_per_s2 * e_x + prm.k_vel_per_s * e_v + prm.k_acc * e_a)
+            if prm.link_bound_mps2 is not None:
+                term = sat(term, prm.link_bound_mps2)  # eq. 4.4
+            w = lk.weight / eta if prm.normalize else lk.weight
+            fb += w * term
+            ff += lk.weight / eta * (st.accel_mps2 - d_acc)
+            max_age = max(max_age, lk.age_s)
+        # reference-speed damping (eq. 4.3 k2, eq. 4.5 k1); the transitional rate of D_i shifts v_0
+        _, d0_rate, _ = self._offset(obs, convoy, i, 0, gaps) if prm.k_ref_vel_per_s > 0 else (0.0, 0.0, 0.0)
+        u = prm.accel_feedforward * ff + fb - prm.k_ref_vel_per_s * (v_i - v0 + d0_rate) - prm.k_own_acc * a_i
+        info.update(max_age_s=max_age, reference_speed_mps=v0)
+        pm = self._fresh(obs, convoy[i - 1])
+        if pm is not None:
+            info["gap_m"] = pm.state.position_m + pm.state.speed_mps * _age_s(obs, pm) - pm.length_m - x_i
+        return u, info
+
+    def _fallback(self, obs: Observation, g: GapSample) -> float:
+        """No fresh neighbour: on-board ACC on the sensed gap if there is one, else hold speed."""
+        prm = self.params
+        if obs.sensed_gap_m is not None and obs.sensed_speed_mps is not None:
+            return prm.k_pos_per_s2 * (obs.sensed_gap_m - g.gap_m) - prm.k_vel_per_s * (obs.ego.speed_mps - obs.sensed_speed_mps)
+        return 0.0
+
+    # -----------------------------------------------------------------------------------------
+    def _predecessor_law(self, obs: Observation, convoy: tuple[str, ...], i: int) -> tuple[float, dict[str, Any]]:
+        """Eq. 4.10 / 4.11 on the (delayed) predecessor message."""
+        prm = self.params
+        g = self._gap_sample(obs, convoy, i, i)
+        info: dict[str, Any] = {"gap_ref_m": g.gap_m, "links": 0}
+        pm = self._fresh(obs, convoy[i - 1])
+        if pm is None:
+            return self._fallback(obs, g), info | {"fallback": True}
+        st = pm.state
+        age = _age_s(obs, pm)
+        x_i, v_i = obs.ego.position_m, obs.ego.speed_mps
+        comp = {"reference": self._reference_speed(obs, convoy, [_Link(pm, i - 1, 1.0, age)]), "sender": st.speed_mps, "none": 0.0}[prm.delay_compensation]
+        gap = st.position_m + age * comp - pm.length_m - x_i  # delayed predecessor position compensated as in eq. 4.3
+        e_sp = gap - g.gap_m  # eq. 3.9/3.11 (positive: too far behind)
+        e_sv = v_i - st.speed_mps + g.rate_mps
+        ff = prm.accel_feedforward * (st.accel_mps2 - g.accel_mps2)
+        if prm.law == "liu_tanh":
+            c = prm.liu
+            gap_delayed = st.position_m - pm.length_m - self._own_position_at(obs.time_s - age, x_i)
+            k6 = c.k6 if c.k6 is not None else c.k5_per_m * g.gap_m
+            k3 = c.k3 if c.k3 is not None else -c.k4 * math.tanh(c.k5_per_m * g.gap_m - k6)
+            u = ff + c.k1_per_s2 * e_sp - c.k2_mps2 * (k3 + c.k4 * math.tanh(c.k5_per_m * gap_delayed - k6)) - c.k_rel_speed_per_s * e_sv
+        else:
+            c = prm.zhou
+            v_max = min(obs.profile.speed_limit_train(x_i, obs.params.length_m), obs.params.max_speed_ms)
+            barrier = c.k3_mps2 * v_i / (v_i - v_max) if v_i < v_max - 1e-3 else -1e3
+            u = ff + c.k1_mps2 * math.tanh(e_sp / c.spacing_scale_m) - c.k2_mps2 * math.tanh(e_sv / c.speed_scale_mps) + barrier
+        info.update(gap_m=gap, max_age_s=age, links=1)
+        return u, info
+
+    def _own_position_at(self, t: float, default: float) -> float:
+        """Own position at time t from the recorded history (for d_{F,t−τ} of eq. 4.10)."""
+        best = default
+        for tt, x in reversed(self._own_history):
+            best = x
+            if tt <= t + 1e-9:
+                break
+        return best
+
+    # -----------------------------------------------------------------------------------------
+    def _leader_step(self, obs: Observation, grad: float, tf: float) -> Command:
+        """A convoy leader (or a train outside any convoy) tracks its target speed with a P law."""
+        p = obs.params
+        v_lim = min(obs.profile.speed_limit_train(obs.ego.position_m, p.length_m), p.max_speed_ms)
+        target = v_lim if obs.target_speed_mps is None else min(obs.target_speed_mps, v_lim)
+        u = self.params.leader_speed_gain_per_s * (target - obs.ego.speed_mps)
+        cmd = self._to_command(obs, u, {"target_speed_mps": target}, grad, tf)
+        return Command(cmd.force_n, mode="cbc-leader", info=cmd.info)
+
+    def _to_command(self, obs: Observation, u: float, info: dict[str, Any], grad: float, tf: float) -> Command:
+        """Speed-limit guard, saturation to the traction/brake envelope (eq. 4.4), force (eq. 2.2 inverted)."""
+        p = obs.params
+        v = obs.ego.speed_mps
+        prm = self.params
+        if prm.speed_limit_gain_per_s is not None:
+            v_lim = min(obs.profile.speed_limit_train(obs.ego.position_m, p.length_m), p.max_speed_ms)
+            u = min(u, prm.speed_limit_gain_per_s * (v_lim - v))
+        # eq. 4.4 input bound: the speed-dependent envelope −min(M a_br, P_br/v) ≤ F ≤ min(M a_dr, P_dr/v),
+        # mapped to accelerations through eq. 1b (same arithmetic as dynamics.acceleration, computed once)
+        f_max = float(traction_limit(p, v))
+        f_min = -float(brake_force_limit(p, v))
+        f_res = float(running_resistance(p, v, tf)) + float(gradient_force(p, grad))
+        m_eff = p.mass_kg * p.rotating_mass_factor
+        u_sat = min(max(u, (f_min - f_res) / m_eff), (f_max - f_res) / m_eff)
+        force = min(max(m_eff * u_sat + f_res, f_min), f_max)
+        info.update(u_mps2=u, u_sat_mps2=u_sat, saturated=bool(u_sat != u))
+        mode = "cbc" if prm.law == "consensus" else f"cbc-{prm.law}"
+        if info.get("fallback"):
+            mode = "cbc-fallback"
+        return Command(force_n=force, mode=mode, info=info)
+
+
+# ---------------------------------------------------------------------------------------------
+# Linear analysis of the closed loop (eq. 4.2 with delays, eq. 4.3)
+
+
+def _loop_matrices(prm: CbcParams, graph: ConvoyGraph, lag_s: float, delay_s: float) -> tuple[list[np.ndarray], np.ndarray]:
+    """Own polynomials q_i(s) and neighbour polynomials p_ij(s) (highest power first).
+
+    Linearised follower i (plant (τs+1)s²X_i = U_i, leader exogenous, leader speed broadcast):
+        q_i(s) X_i − e^{−sθ} Σ_{j≥1} p_ij(s) X_j = (leader terms)
+        q_i = τs³ + (1 + k_a0 + k_a Σw)s² + (k_v Σw + k_v0 + k_x h Σ_j w_ij (i−j))s + k_x Σw
+        p_ij = w_ij (k_a s² + (k_v + k_x θ [sender compensation]) s + k_x) + w̄_ij c_ff s²
+    """
+    n_f = graph.n_followers
+    tau = max(lag_s, 1e-3)
+    full = graph.full_adjacency()
+    eta = graph.in_degree()
+    qs: list[np.ndarray] = []
+    P = np.zeros((n_f, n_f, 3))
+    theta_s = delay_s if prm.delay_compensation == "sender" else 0.0
+    for r in range(n_f):
+        i = r + 1
+        row = full[i]
+        w = row / eta[r] if prm.normalize else row.copy()
+        wbar = row / eta[r]
+        sw = w.sum()
+        sigma = sum(w[j] * (i - j) for j in range(graph.n_trains))
+        qs.append(np.array([tau, 1 + prm.k_own_acc + prm.k_acc * sw, prm.k_vel_per_s * sw + prm.k_ref_vel_per_s + prm.k_pos_per_s2 * prm.gap.headway_s * sigma, prm.k_pos_per_s2 * sw]))
+        for j in range(1, graph.n_trains):
+            if row[j] > 0:
+                P[r, j - 1] = w[j] * np.array([prm.k_acc, prm.k_vel_per_s + prm.k_pos_per_s2 * theta_s, prm.k_pos_per_s2]) + wbar[j] * np.array([prm.accel_feedforward, 0.0, 0.0])
+    return qs, P
+
+
+def _omega_grid(n: int = 4000, w_min: float = 1e-4, w_max: float = 200.0) -> np.ndarray:
+    return np.concatenate([[0.0], np.logspace(math.log10(w_min), math.log10(w_max), n)])
+
+
+def closed_loop_stable(prm: CbcParams, n_trains: int, lag_s: float, delay_s: float = 0.0) -> bool:
+    """Is the linearised convoy (eq. 4.2) with constant T2T delay θ = ``delay_s`` asymptotically stable?
+
+    Generalised Nyquist criterion: with every own loop q_i Hurwitz, the quasi-polynomial
+    det(Q(s) − e^{−sθ}P(s)) has no root in Re s ≥ 0 iff det(I − e^{−jωθ}Q⁻¹P(jω)) does not encircle 0.
+    """
+    graph = convoy_graph(prm.topology, n_trains)
+    qs, P = _loop_matrices(prm, graph, lag_s, delay_s)
+    for q in qs:
+        if np.any(np.roots(q).real >= 0):
+            return False
+    w = _omega_grid()
+    s = 1j * w
+    qv = np.stack([np.polyval(q, s) for q in qs], axis=1)  # (W, N)
+    pv = P[..., 0][None] * s[:, None, None] ** 2 + P[..., 1][None] * s[:, None, None] + P[..., 2][None]
+    g = np.exp(-s * delay_s)[:, None, None] * pv / qv[:, :, None]
+    n_f = graph.n_followers
+    det = np.linalg.det(np.eye(n_f)[None] - g)
+    if np.min(np.abs(det)) < 1e-9:
+        return False
+    phase = np.unwrap(np.angle(det))
+    winding = 2.0 * (phase[-1] - phase[0]) / (2 * math.pi)
+    return abs(winding) < 0.5
+
+
+def delay_margin_s(prm: CbcParams, n_trains: int, lag_s: float, max_delay_s: float = 10.0, step_s: float = 0.1) -> float:
+    """Smallest constant T2T delay that destabilises the linearised convoy, s (inf if none ≤ ``max_delay_s``).
+
+    For acyclic topologies (PF, PLF, TPF) Q⁻¹P is nilpotent, det ≡ 1, and the margin is infinite:
+    the delay can only degrade string stability (:func:`string_gain`), not internal stability.
+    """
+    if not closed_loop_stable(prm, n_trains, lag_s, 0.0):
+        return 0.0
+    if convoy_graph(prm.topology, n_trains).is_acyclic():
+        return math.inf  # Q⁻¹P strictly lower triangular: det(I − e^{−sθ}Q⁻¹P) ≡ 1 for every θ
+    theta = step_s
+    prev = 0.0
+    while theta <= max_delay_s + 1e-12:
+        if not closed_loop_stable(prm, n_trains, lag_s, theta):
+            lo, hi = prev, theta
+            for _ in range(20):
+                mid = 0.5 * (lo + hi)
+                if closed_loop_stable(prm, n_trains, lag_s, mid):
+                    lo = mid
+                else:
+                    hi = mid
+            return 0.5 * (lo + hi)
+        prev = theta
+        theta += step_s
+    return math.inf
+
+
+def leader_response(prm: CbcParams, n_trains: int, lag_s: float, omega_rad_s: np.ndarray, delay_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Frequency responses from the leader's position X_0 to every follower, linearised (eq. 4.2 with delay θ).
+
+    Solves (Q(jω) − e^{−jωθ}P(jω)) X = b(jω) X_0, where b collects everything follower i receives from
+    the leader: the pinning link a_i0 (k_x, k_v, k_a, c_ff, its delay compensation), the eq. 4.3
+    reference-speed compensation θ·v_0 on every link, and k_v0·v_0.  Returns (X_i/X_0, E_i/X_0), each of
+    shape (N, len(ω)), with the gap error E_i = X_{i−1} − X_i − h·s·X_i (constant time headway, eq. 3.1).
+    """
+    graph = convoy_graph(prm.topology, n_trains)
+    qs, P = _loop_matrices(prm, graph, lag_s, delay_s)
+    n_f = graph.n_followers
+    full = graph.full_adjacency()
+    eta = graph.in_degree()
+    w = np.asarray(omega_rad_s, dtype=float)
+    s = 1j * w
+    z = np.exp(-s * delay_s)
+    comp_leader = prm.delay_compensation in ("reference", "sender")
+    b = np.zeros((len(w), n_f), dtype=complex)
+    for r in range(n_f):
+        row = full[r + 1]
+        wr = row / eta[r] if prm.normalize else row.copy()
+        wbar0 = row[0] / eta[r]
+        k_v = prm.k_vel_per_s + (prm.k_pos_per_s2 * delay_s if comp_leader else 0.0)
+        bi = wr[0] * (prm.k_acc * s**2 + k_v * s + prm.k_pos_per_s2) + wbar0 * prm.accel_feedforward * s**2
+        if prm.delay_compensation == "reference":
+            bi = bi + wr[1:].sum() * prm.k_pos_per_s2 * delay_s * s
+        bi = bi + prm.k_ref_vel_per_s * s
+        b[:, r] = z * bi
+    M = np.zeros((len(w), n_f, n_f), dtype=complex)
+    for r, q in enumerate(qs):
+        M[:, r, r] = np.polyval(q, s)
+    M -= z[:, None, None] * (P[..., 0][None] * s[:, None, None] ** 2 + P[..., 1][None] * s[:, None, None] + P[..., 2][None])
+    X = np.linalg.solve(M, b[..., None])[..., 0]  # (W, N)
+    ahead = np.concatenate([np.ones((len(w), 1)), X[:, :-1]], axis=1)
+    E = ahead - X - prm.gap.headway_s * s[:, None] * X
+    return X.T, E.T
+
+
+def string_gain_response(prm: CbcParams, lag_s: float, omega_rad_s: np.ndarray, delay_s: float = 0.0) -> np.ndarray:
+    """|G(jω)| of the PF predecessor→follower transfer (homogeneous string, linearised), -.
+
+    G(s) = e^{−sθ} p(s)/q(s) with the PF row of :func:`_loop_matrices`.  With compensation ``none``
+    or ``sender`` (or no delay) the PF string is a pure cascade: positions and gap errors of
+    consecutive followers are related by G, so a disturbance at frequency ω is multiplied by
+    |G(jω)| from one follower to the next.  With the eq. 4.3 ``reference`` compensation and θ > 0
+    every follower also receives θ·v_0 from the leader (an extra path): use :func:`leader_response`.
+    """
+    qs, P = _loop_matrices(prm.model_copy(update={"topology": "PF"}), convoy_graph("PF", 3), lag_s, delay_s)
+    s = 1j * np.asarray(omega_rad_s, dtype=float)
+    return np.abs(np.polyval(P[1, 0], s) / np.polyval(qs[1], s))
+
+
+def string_gain_peak(prm: CbcParams, lag_s: float, delay_s: float = 0.0) -> tuple[float, float]:
+    """(sup_ω |G(jω)|, the ω in rad/s where it is reached) for the PF string (see :func:`string_gain_response`)."""
+    w = _omega_grid(20000)[1:]
+    g = string_gain_response(prm, lag_s, w, delay_s)
+    k = int(np.argmax(g))
+    return float(g[k]), float(w[k])
+
+
+def string_gain(prm: CbcParams, lag_s: float, delay_s: float = 0.0) -> float:
+    """sup_ω |G(jω)|: the PF cascade is (L2) string stable iff it is ≤ 1 (G(0) = 1 always)."""
+    return string_gain_peak(prm, lag_s, delay_s)[0]
+
+
+def string_stability_delay_bound_s(prm: CbcParams, lag_s: float, max_delay_s: float = 10.0, tol: float = 1e-6) -> float:
+    """Largest constant delay keeping the PF cascade string stable (sup|G| ≤ 1), s.
+
+    0 if not string stable without delay, inf if never lost up to ``max_delay_s``.  Only defined for
+    cascades (compensation ``none`` or ``sender``): with ``reference`` G does not depend on θ and the
+    delay acts through the leader path instead (see :func:`leader_response`).
+    """
+    if prm.delay_compensation == "reference":
+        raise ValueError("with reference-speed compensation the PF string is not a pure cascade: use leader_response")
+    if string_gain(prm, lag_s, 0.0) > 1.0 + tol:
+        return 0.0
+    if string_gain(prm, lag_s, max_delay_s) <= 1.0 + tol:
+        return math.inf
+    lo, hi = 0.0, max_delay_s
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if string_gain(prm, lag_s, mid) <= 1.0 + tol:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def closed_loop_poles(prm: CbcParams, n_trains: int, lag_s: float) -> np.ndarray:
+    """Eigenvalues of the delay-free linearised convoy (eq. 4.2; state [x, v, a] per follower), 1/s."""
+    graph = convoy_graph(prm.topology, n_trains)
+    qs, P = _loop_matrices(prm, graph, lag_s, 0.0)
+    n_f = graph.n_followers
+    A = np.zeros((3 * n_f, 3 * n_f))
+    for r, q in enumerate(qs):
+        tau = q[0]
+        A[3 * r, 3 * r + 1] = 1.0
+        A[3 * r + 1, 3 * r + 2] = 1.0
+        A[3 * r + 2, 3 * r : 3 * r + 3] = -q[[3, 2, 1]] / tau
+        for c in range(n_f):
+            A[3 * r + 2, 3 * c : 3 * c + 3] += P[r, c][[2, 1, 0]] / tau
+    return np.linalg.eigvals(A)
+
+
+def settling_rate_per_s(prm: CbcParams, n_trains: int, lag_s: float) -> float:
+    """−max Re of the delay-free closed-loop poles (:func:`closed_loop_poles`): errors decay like e^{−rate·t}, 1/s."""
+    return float(-closed_loop_poles(prm, n_trains, lag_s).real.max())
+
+
+def cbc_params_for(topology: str, base: CbcParams | None = None, **changes: Any) -> CbcParams:
+    """A copy of ``base`` (default settings) with another topology and field changes, re-validated."""
+    data = (base or CbcParams()).model_dump()
+    data.update(changes)
+    data["topology"] = topology
+    return CbcParams.model_validate(data)
+
+
+__all__ = [
+    "CbcParams",
+    "ConsensusController",
+    "LiuParams",
+    "ZhouParams",
+    "acceleration_envelope",
+    "cbc_params_for",
+    "closed_loop_poles",
+    "closed_loop_stable",
+    "delay_margin_s",
+    "force_for_acceleration",
+    "leader_response",
+    "load_cbc_params",
+    "sat",
+    "settling_rate_per_s",
+    "string_gain",
+    "string_gain_peak",
+    "string_gain_response",
+    "string_stability_delay_bound_s",
+]
+
