@@ -97,3 +97,30 @@ def test_the_readme_example_line_works(in_tmp, root, capsys):
     assert main(["study", "headway", "--line", str(line), "--out", "hw"]) == 0
     df = pd.read_csv("hw/headway.csv")
     assert len(df) >= 2 and (abs(df.headway_sim_s - df.headway_analytic_s) / df.headway_analytic_s < 0.05).all()
+
+
+def test_single_track_line_runs_opposing_trains_and_headway(in_tmp):
+    line = write(in_tmp / "single" / "line.yaml", """
+name: single
+km_start: 0
+km_end: 12
+tracks: single
+line_speed_kmh: 120
+default_train: hcmc_l1
+stations:
+  - {id: A, name: A, km: 0.2, platform_length_m: 150}
+  - {id: B, name: B, km: 11.8, platform_length_m: 150}
+signalling: {block_length_m: 1000}
+headway: {measuring_points_km: [6.0]}
+""")
+    tt = write(in_tmp / "tt.yaml", "name: t\nline: single\nservices:\n"
+               "  - {id: E, train: hcmc_l1, origin: A, destination: B, departure: 0}\n"
+               "  - {id: W, train: hcmc_l1, origin: B, destination: A, departure: 10}\n")
+    assert main(["run", "--line", str(line), "--timetable", str(tt), "--regime", "fbs", "--out", "r"]) == 0
+    s = pd.read_csv("r/summary.csv").set_index("train")
+    # the opposing train is held at B until E has cleared the single-track section
+    assert s.loc["W", "departure_s"] >= s.loc["E", "arrival_s"] - 60.0
+    assert s.collisions.sum() == 0 and s.arrived.all()
+    assert main(["study", "headway", "--line", str(line), "--out", "h"]) == 0
+    df = pd.read_csv("h/headway.csv")
+    assert set(df.direction) == {"up", "down"} and (abs(df.deviation_pct) < 5).all()

@@ -130,3 +130,32 @@ def test_fuzzed_line_files_never_crash(tmp_path_factory, path, value):
     topo = build_topology(ln)
     total = sum(e.length_m for e in topo.track_for("main", "up").edges and [topo.edges[x] for x in topo.track_for("main", "up").edges])
     assert total == pytest.approx((ln.data.km_end - ln.data.km_start) * 1000, abs=1.0)
+
+
+@pytest.mark.parametrize(
+    "old,new,field,words",
+    [
+        ("mass_kg: 500000.0", "mass_kg: -5", "mass_kg", "greater than 0"),
+        ("length_m: 202.0", "length_m: 202.0\nwheels: 32", "wheels", "unknown key"),
+        ("emergency_brake_decel_mps2: 1.2", "emergency_brake_decel_mps2: 0.3", "", "must not be below"),
+        ("  mass_kg: {low: 461000.0, high: 540000.0}", "  mass_kg: {low: 520000.0, high: 540000.0}", "", "does not contain the nominal"),
+    ],
+)
+def test_bad_rolling_stock_file(tmp_path, root, old, new, field, words):
+    from vcsumo.rolling_stock import load_rolling_stock
+
+    text = (root / "networks" / "rolling_stock" / "etr1000.yaml").read_text()
+    assert old in text
+    path = write(tmp_path / "mytrain.yaml", text.replace(old, new))
+    with pytest.raises(InputError) as exc:
+        load_rolling_stock(path)
+    assert str(path) in str(exc.value) and field in str(exc.value) and words in str(exc.value)
+
+
+def test_vtype_units_kilo_for_sumo():
+    from vcsumo.rolling_stock import load_rolling_stock
+
+    x = load_rolling_stock("etr1000").vtype_xml(1.5)
+    assert 'maxPower="9800.0000"' in x and 'maxTraction="370.0000"' in x
+    assert 'resCoef_constant="8.800000"' in x and 'resCoef_quadratic="0.01305000"' in x  # 8.7 N/(m/s)^2 x 1.5 in kN
+    assert 'id="etr1000@tf1.50"' in x and 'carFollowModel="Rail"' in x and 'trainType="custom"' in x

@@ -19,7 +19,7 @@ from rich.table import Table
 from vcsumo.errors import VcsumoError
 
 console = Console(stderr=True)
-out_console = Console()
+out_console = Console(width=None if sys.stdout.isatty() else 160)
 
 
 def _progress() -> Progress:
