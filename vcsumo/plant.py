@@ -28,6 +28,9 @@ class PlantState:
 class TrainPlant:
     """One train integrated with explicit Euler (Felez eq. 6b), force lag (1c) and jerk limit (4c).
 
+    The jerk limit bounds the change of the applied force F per step (not of the command), so with
+    both lag and jerk the effective jerk is min(lag rate, j_max).
+
     ``profile`` gives gradient (averaged over the train length) and tunnel factor along position;
     None means level open track.  Speed never goes negative (trains do not reverse).
     """
@@ -42,9 +45,11 @@ class TrainPlant:
     def step(self, u_cmd_n: float, dt: float) -> PlantState:
         p, x = self.p, self.x
         u = float(np.clip(u_cmd_n, -brake_force_limit(p, x.v_mps), traction_limit(p, x.v_mps)))
-        if self.apply_jerk:
-            u = jerk_limit(x.force_n, u, p, dt)
+        # the applied force F follows the command with lag τ (eq. 1c); its rate of change is
+        # bounded by the jerk limit (eq. 4c / 12o: |F_{k+1} − F_k| ≤ j_max·M·Δt)
         force = lag_step(x.force_n, u, p.traction_lag_s, dt) if self.apply_lag else u
+        if self.apply_jerk:
+            force = jerk_limit(x.force_n, force, p, dt)
         grad, tf = 0.0, 1.0
         if self.profile is not None:
             grad = self.profile.mean_gradient(x.s_m, p.length_m)

@@ -1,0 +1,581 @@
+"""Robust lower and upper proxies of an uncertain train (Terlizzi, Liuzza & Glielmo 2024, §IV).
+
+The train model is eq. 5 with the input constraints eq. 6 and the parameters uncertain in the box
+eq. 7 (:meth:`vcsumo.rolling_stock.RollingStock.uncertainty_box`)::
+
+    ẋ1 = x2
+    ẋ2 = (−A − B·x2 − C·T_f·x2²)/(ρ·M) − g·σ(x1) + u/(ρ·M)
+
+with σ the *equivalent* gradient of the route (gradient + curve resistance, the paper's
+F_e = g·σ + γ/ρ_curve, see :mod:`vcsumo.route_profile`) and T_f the tunnel factor on the
+aerodynamic term.  ρ is the rotating-mass factor (nominal, not uncertain; 1 in the paper).
+
+* The **robust lower proxy** RLP (Definition 8, eq. 12) bounds every true trajectory from below,
+  component-wise, for every parameter vector in the box.
+* The **robust upper proxy** RUP (Definition 9, eq. 13) bounds it from above.
+
+Both freeze the route at its worst value over a window [s_from, s^H] ahead of the train
+(σ_sup / σ_inf in eq. 12–13) so that their right-hand side no longer depends on the position and
+the comparison principle applies (Lemma IV.1).  The window must contain every position the true
+train occupies (its whole length, so it starts at s − L) over the horizon considered; the paper's
+choice is s^H = x1 + V^max·T^max (§VI-B).
+
+Implementation notes (all keep the bounds valid, none changes the paper's equations):
+
+* Forces are exogenous in eq. 12–13, but a real train saturates a command at its own (unknown)
+  traction/brake envelope eq. 6a–6b.  The RLP therefore uses min(u, U_max^rob(x2)) for u ≥ 0
+  (the traction every train in the box can deliver) and the RUP max(u, −U_br^rob(x2)) for u < 0
+  (the braking every train in the box can deliver), so that the bounds hold for *any* command,
+  including the full-brake demand of the emergency controller.
+* The RLP's braking branch of eq. 12 evaluates the aerodynamic term at x2(t0) (the speed at the
+  start of the prediction); we use max(x2, x2(t0)) so the bound also holds if the train speeds up
+  on a down-grade while braking lightly.
+* The proxies take the commanded force as applied (Terlizzi's model has no actuator dynamics).  For
+  a train with a force lag or jerk limit (Felez eq. 1c, 4c) the safety layer adds the dead time
+  :meth:`BoxBounds.actuation_delay_s` to the follower's braking (see :mod:`vcsumo.control.cbf`).
+* :meth:`RobustProxies.rollout` integrates with explicit Euler on the same grid as
+  :class:`vcsumo.plant.TrainPlant` (s_{k+1} = s_k + v_k·Δt, eq. 6b of Felez); the Euler map is
+  monotone in (s, v) for the step sizes used, so the discrete proxies bound the discrete plant
+  step by step (the property :mod:`tests.test_proxies` checks).
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from dataclasses import dataclass
+
+import numpy as np
+
+from vcsumo.dynamics import TrainParams
+from vcsumo.rolling_stock import RollingStock, UncertaintyBox
+from vcsumo.route_profile import RouteProfile
+from vcsumo.units import G
+
+_V_EPS = 0.1
+"""Speed below which power limits are evaluated at this speed (as :mod:`vcsumo.dynamics`), m/s."""
+
+
+# -------------------------------------------------------------------------------------------
+# The parameter box (eq. 7)
+
+
+@dataclass(frozen=True)
+class BoxBounds:
+    """The intervals of eq. 7 in SI units, plus the train's known (certain) data.
+
+    ``*_low``/``*_high`` are the interval ends; braking quantities are magnitudes (positive).
+    """
+
+    length_m: float
+    max_speed_ms: float
+    rotating_mass_factor: float
+    mass_low_kg: float
+    mass_high_kg: float
+    davis_a_low_n: float
+    davis_a_high_n: float
+    davis_b_low_n_per_mps: float
+    davis_b_high_n_per_mps: float
+    davis_c_low_n_per_mps2: float
+    davis_c_high_n_per_mps2: float
+    accel_low_mps2: float
+    """a_dr lower end: traction force limit / mass, m/s²."""
+    accel_high_mps2: float
+    brake_decel_low_mps2: float
+    """a_br lower end (service braking force limit / mass), m/s²."""
+    brake_decel_high_mps2: float
+    power_low_w: float
+    power_high_w: float
+    brake_power_low_w: float = math.inf
+    brake_power_high_w: float = math.inf
+    traction_lag_s: float = 0.0
+    """First-order force lag τ (eq. 1c of Felez), s; 0 in Terlizzi's model."""
+    max_jerk_mps3: float = math.inf
+    """Jerk limit (eq. 4c of Felez), m/s³; none in Terlizzi's model."""
+
+    def actuation_delay_s(self, force_n: float | None = None) -> float:
+        """Dead time bounding the force lag and jerk limit from ``force_n`` to the full brake, s.
+
+        A first-order lag τ and a jerk-limited ramp of duration ΔF/(M̲·j) each deliver, at every
+        time, no less braking impulse than holding the present force for the same time and then
+        braking fully.  ``force_n=None`` assumes full traction (ΔF ≤ M̄(ā_dr + ā_br)).  0 for a
+        train without actuator dynamics (Terlizzi's model).
+        """
+        if self.traction_lag_s <= 0 and not math.isfinite(self.max_jerk_mps3):
+            return 0.0
+        f_full = self.strongest_brake_n(0.0)
+        f0 = self.mass_high_kg * self.accel_high_mps2 if force_n is None else force_n
+        swing = max(0.0, f0 + f_full)
+        if swing <= 0.0:
+            return 0.0
+        ramp = swing / (self.mass_low_kg * self.max_jerk_mps3) if math.isfinite(self.max_jerk_mps3) and self.max_jerk_mps3 > 0 else 0.0
+        return self.traction_lag_s + ramp
+
+    @classmethod
+    def from_box(cls, box: UncertaintyBox, nominal: TrainParams) -> "BoxBounds":
+        """Bounds from the eq. 7 intervals; certain data (length, V_max, ρ) from the nominal model."""
+        bp = box.max_brake_power_w
+        bp_low = bp.low if bp is not None else nominal.max_brake_power_w
+        bp_high = bp.high if bp is not None else nominal.max_brake_power_w
+        return cls(
+            length_m=nominal.length_m,
+            max_speed_ms=nominal.max_speed_ms,
+            rotating_mass_factor=nominal.rotating_mass_factor,
+            mass_low_kg=box.mass_kg.low,
+            mass_high_kg=box.mass_kg.high,
+            davis_a_low_n=box.davis_a_n.low,
+            davis_a_high_n=box.davis_a_n.high,
+            davis_b_low_n_per_mps=box.davis_b_n_per_mps.low,
+            davis_b_high_n_per_mps=box.davis_b_n_per_mps.high,
+            davis_c_low_n_per_mps2=box.davis_c_n_per_mps2.low,
+            davis_c_high_n_per_mps2=box.davis_c_n_per_mps2.high,
+            accel_low_mps2=box.max_accel_mps2.low,
+            accel_high_mps2=box.max_accel_mps2.high,
+            brake_decel_low_mps2=box.service_brake_decel_mps2.low,
+            brake_decel_high_mps2=box.service_brake_decel_mps2.high,
+            power_low_w=box.max_power_w.low,
+            power_high_w=box.max_power_w.high,
+            brake_power_low_w=bp_low,
+            brake_power_high_w=bp_high,
+            traction_lag_s=nominal.traction_lag_s,
+            max_jerk_mps3=nominal.max_jerk_mps3,
+        )
+
+    @classmethod
+    def from_stock(cls, stock: RollingStock) -> "BoxBounds":
+        return cls.from_box(stock.uncertainty_box(), stock.params())
+
+    def contains(self, p: TrainParams, tol: float = 1e-9) -> bool:
+        """True when the parameter vector p lies in the box (eq. 7)."""
+
+        def inside(x: float, lo: float, hi: float) -> bool:
+            return lo - tol * max(1.0, abs(lo)) <= x <= hi + tol * max(1.0, abs(hi))
+
+        return (
+            inside(p.mass_kg, self.mass_low_kg, self.mass_high_kg)
+            and inside(p.davis_a_n, self.davis_a_low_n, self.davis_a_high_n)
+            and inside(p.davis_b_n_per_mps, self.davis_b_low_n_per_mps, self.davis_b_high_n_per_mps)
+            and inside(p.davis_c_n_per_mps2, self.davis_c_low_n_per_mps2, self.davis_c_high_n_per_mps2)
+            and inside(p.max_traction_n / p.mass_kg, self.accel_low_mps2, self.accel_high_mps2)
+            and inside(p.service_brake_decel_mps2, self.brake_decel_low_mps2, self.brake_decel_high_mps2)
+            and inside(p.max_power_w, self.power_low_w, self.power_high_w)
+            and (math.isinf(self.brake_power_low_w) or inside(p.max_brake_power_w, self.brake_power_low_w, self.brake_power_high_w))
+        )
+
+    # ---------------------------------------------------------------------------------------
+    # Robust input sets (eq. 16, 17)
+
+    def robust_traction_max_n(self, v: float) -> float:
+        """Largest traction force every train in the box can deliver at speed v, N (eq. 6a, 6b, 16)."""
+        return min(self.mass_low_kg * self.accel_low_mps2, self.power_low_w / max(v, _V_EPS))
+
+    def robust_brake_max_n(self, v: float) -> float:
+        """Largest braking force (magnitude) every train in the box can deliver at speed v, N.
+
+        −robust_brake_max_n(v) = min 𝒰(x) of eq. 16–17: the emergency input of Definition 11.
+        """
+        return min(self.mass_low_kg * self.brake_decel_low_mps2, self.brake_power_low_w / max(v, _V_EPS))
+
+    def strongest_brake_n(self, v: float) -> float:
+        """Largest braking force (magnitude) any train in the box may develop at speed v, N."""
+        return min(self.mass_high_kg * self.brake_decel_high_mps2, self.brake_power_high_w / max(v, _V_EPS))
+
+    def brake_decel_low(self, v: float) -> float:
+        """α̲(x2) = min{a̲_br, P̲_br/(M̄·x2)}: the weakest full-brake deceleration in the box, m/s² (§V).
+
+        A train brought to its full brake (the emergency controller demands at least
+        :meth:`strongest_brake_n`, which every train saturates at its own envelope) decelerates by
+        min(a_br, P_br/(M·v)) ≥ α̲(v) from braking alone.
+        """
+        return min(self.brake_decel_low_mps2, self.brake_power_low_w / (self.mass_high_kg * max(v, _V_EPS))) / self.rotating_mass_factor
+
+    def accel_high(self, v: float) -> float:
+        """Largest tractive acceleration any train in the box can reach at speed v, m/s² (ā_dr, eq. 22)."""
+        return min(self.accel_high_mps2, self.power_high_w / (self.mass_low_kg * max(v, _V_EPS))) / self.rotating_mass_factor
+
+
+def sample_params(stock: RollingStock, rng: np.random.Generator, corner: bool = False) -> TrainParams:
+    """A "true" parameter vector drawn uniformly inside the eq. 7 box (or at a random corner).
+
+    Used to build a plant that differs from the nominal model (seeded)."""
+    box = stock.uncertainty_box()
+    nom = stock.params()
+
+    def draw(iv) -> float:
+        if iv is None:
+            return math.nan
+        if corner:
+            return float(iv.low if rng.random() < 0.5 else iv.high)
+        return float(rng.uniform(iv.low, iv.high))
+
+    m = draw(box.mass_kg)
+    a_dr = draw(box.max_accel_mps2)
+    a_br = draw(box.service_brake_decel_mps2)
+    p_br = draw(box.max_brake_power_w)
+    return nom.with_(
+        mass_kg=m,
+        davis_a_n=draw(box.davis_a_n),
+        davis_b_n_per_mps=draw(box.davis_b_n_per_mps),
+        davis_c_n_per_mps2=draw(box.davis_c_n_per_mps2),
+        max_traction_n=m * a_dr,
+        service_brake_decel_mps2=a_br,
+        emergency_brake_decel_mps2=max(nom.emergency_brake_decel_mps2, a_br),
+        max_power_w=draw(box.max_power_w),
+        max_brake_power_w=nom.max_brake_power_w if math.isnan(p_br) else p_br,
+    )
+
+
+# -------------------------------------------------------------------------------------------
+# The route (σ_sup, σ_inf, ρ_inf, ρ_sup of eq. 12–13)
+
+
+@dataclass(frozen=True)
+class RouteBounds:
+    """Worst-case route data over a window: equivalent gradient (rise/run) and tunnel factor."""
+
+    grade_min: float
+    grade_max: float
+    tunnel_min: float
+    tunnel_max: float
+
+
+_LEVEL = RouteBounds(0.0, 0.0, 1.0, 1.0)
+
+
+class GradeWindow:
+    """Extrema of the route's equivalent gradient and tunnel factor over [s_from, s_to].
+
+    Equivalent gradient = gradient + curve resistance as a gradient, so g·σ is the paper's
+    F_e = g·σ + γ/ρ (eq. 5).  Positions outside the route take the first/last edge's values, as
+    :class:`vcsumo.route_profile.RouteProfile` and the plant do.  ``profile=None`` is level open
+    track.
+    """
+
+    def __init__(self, profile: RouteProfile | None):
+        self.profile = profile
+        if profile is not None:
+            self._starts = np.asarray(profile.starts_m, dtype=float)
+            self._grades = np.asarray(profile.gradients, dtype=float)
+            self._tunnels = np.asarray(profile.tunnel_factors, dtype=float)
+            self._starts_l = self._starts.tolist()
+            self._grades_l = self._grades.tolist()
+            self._tunnels_l = self._tunnels.tolist()
+            self.global_bounds = RouteBounds(float(self._grades.min()), float(self._grades.max()), float(self._tunnels.min()), float(self._tunnels.max()))
+        else:
+            self.global_bounds = _LEVEL
+
+    def bounds(self, s_from: float, s_to: float) -> RouteBounds:
+        if self.profile is None:
+            return _LEVEL
+        n = len(self._starts_l)
+        i0 = min(max(bisect_right(self._starts_l, s_from) - 1, 0), n - 1)
+        i1 = min(max(bisect_right(self._starts_l, s_to) - 1, 0), n - 1)
+        if i1 < i0:
+            i0, i1 = i1, i0
+        g = self._grades_l[i0 : i1 + 1]
+        t = self._tunnels_l[i0 : i1 + 1]
+        return RouteBounds(min(g), max(g), min(t), max(t))
+
+    def grades_at(self, s: np.ndarray) -> np.ndarray:
+        """Point equivalent gradient at each position (vectorised; for prediction models)."""
+        if self.profile is None:
+            return np.zeros_like(np.asarray(s, dtype=float))
+        idx = np.clip(np.searchsorted(self._starts, s, side="right") - 1, 0, len(self._starts) - 1)
+        return self._grades[idx]
+
+    def speed_limits_at(self, s: np.ndarray) -> np.ndarray:
+        """Line speed limit at each position, m/s (vectorised)."""
+        if self.profile is None:
+            return np.full_like(np.asarray(s, dtype=float), np.inf)
+        idx = np.clip(np.searchsorted(self._starts, s, side="right") - 1, 0, len(self._starts) - 1)
+        return np.asarray(self.profile.speeds_ms, dtype=float)[idx]
+
+
+class StopIntegral:
+    """Worst-case stopping points on the route's train-averaged gradient (energy balance).
+
+    A train of length L feels the gradient averaged over its length, G(x) = (1/L)∫_{x−L}^{x} σ
+    (:meth:`RouteProfile.mean_gradient`, SUMO's slope), a continuous piecewise-linear function of
+    the front position x.  If the train's deceleration from brake and resistance is bounded by a
+    constant a (from below for a follower, from above for a leader), the energy balance
+    d(v²/2)/dx = −(a + g·G(x)) bounds its speed along the track, and the stopping point is the
+    first S ≥ x with
+
+        a·(S − x) + g·(I(S) − I(x)) = v²/2,        I(x) = ∫ G.
+
+    On a constant grade σ this is S = x + v²/(2(a + g·σ)) — exactly the v²/(2e) terms of eq. 15 —
+    but it is continuous and increasing in (x, v) on any profile, unlike the worst grade over a
+    window ahead (σ_sup/σ_inf of eq. 12–13), which jumps whenever a new grade enters the window.
+    I is integrated exactly (G is linear between the breakpoints of σ and σ shifted by L).
+    """
+
+    def __init__(self, profile: RouteProfile | None, length_m: float):
+        L = max(float(length_m), 1.0)
+        self.length_m = L
+        if profile is None:
+            self.x = np.array([0.0])
+            self.G = np.array([0.0])
+            self.I = np.array([0.0])
+            self._x_list = [0.0]
+            self._G_list = [0.0]
+            return
+        starts = np.asarray(profile.starts_m, dtype=float)
+        sig = np.asarray(profile.gradients, dtype=float)
+        # P(y) = ∫_0^y σ, σ = σ_0 before the route and σ_last after it (as RouteProfile/plant)
+        ends = starts + np.asarray(profile.lengths_m, dtype=float)
+
+        def P(y: np.ndarray) -> np.ndarray:
+            y = np.asarray(y, dtype=float)
+            out = np.zeros_like(y)
+            before = y < starts[0]
+            out[before] = sig[0] * (y[before] - starts[0])
+            cum = np.concatenate(([0.0], np.cumsum(sig * (ends - starts))))
+            idx = np.clip(np.searchsorted(starts, y, side="right") - 1, 0, len(starts) - 1)
+            inside = ~before
+            out[inside] = cum[idx[inside]] + sig[idx[inside]] * (y[inside] - starts[idx[inside]])
+            return out
+
+        bps = np.unique(np.concatenate((starts, starts + L, [starts[0] - L, ends[-1], ends[-1] + L])))
+        G = (P(bps) - P(bps - L)) / L
+        I = np.concatenate(([0.0], np.cumsum(0.5 * (G[1:] + G[:-1]) * np.diff(bps))))
+        self.x, self.G, self.I = bps, G, I
+        self._x_list = bps.tolist()
+        self._G_list = G.tolist()
+
+    def _seg(self, x: float) -> int:
+        return min(max(bisect_right(self._x_list, x) - 1, 0), len(self._x_list) - 1)
+
+    def grade_at(self, x: float) -> float:
+        """G(x), the train-averaged equivalent gradient at front position x."""
+        xs, Gs = self._x_list, self._G_list
+        if len(xs) == 1 or x <= xs[0]:
+            return Gs[0]
+        k = self._seg(x)
+        if k >= len(xs) - 1:
+            return Gs[-1]
+        return Gs[k] + (x - xs[k]) / (xs[k + 1] - xs[k]) * (Gs[k + 1] - Gs[k])
+
+    def integral_at(self, x: float) -> float:
+        """I(x) = ∫_{x_0}^{x} G (exact: G is linear between breakpoints)."""
+        if len(self.x) == 1:
+            return float(self.G[0] * (x - self.x[0]))
+        if x <= self.x[0]:
+            return float(self.G[0] * (x - self.x[0]))
+        k = self._seg(x)
+        h = x - self.x[k]
+        if k >= len(self.x) - 1:
+            return float(self.I[-1] + self.G[-1] * h)
+        slope = (self.G[k + 1] - self.G[k]) / (self.x[k + 1] - self.x[k])
+        return float(self.I[k] + self.G[k] * h + 0.5 * slope * h * h)
+
+    def stop_point(self, x: float, v: float, a: float) -> float:
+        """First S ≥ x with a·(S − x) + g·(I(S) − I(x)) ≥ v²/2; +inf if never reached."""
+        if v <= 0.0:
+            return x
+        target = 0.5 * v * v
+        xs, Gs = self._x_list, self._G_list
+        n = len(xs)
+        # walk the linear pieces of G from x: on [xa, xb], a + g·G is linear, F is quadratic
+        xa = x
+        Ga = self.grade_at(x)
+        Fa = 0.0
+        k = self._seg(x) if x > xs[0] else -1
+        j = k + 1
+        while True:
+            if j < n:
+                xb, Gb = xs[j], Gs[j]
+            else:  # beyond the last breakpoint: constant grade
+                r = a + G * Ga
+                if r <= 0:
+                    return math.inf
+                return xa + (target - Fa) / r
+            h_seg = xb - xa
+            ra, rb_ = a + G * Ga, a + G * Gb
+            if ra <= 0 or rb_ <= 0:  # energy balance not monotone here: careful scan
+                return self._first_crossing(x, a, target, self.integral_at(x))
+            Fb = Fa + 0.5 * (ra + rb_) * h_seg
+            if Fb >= target:
+                c2 = 0.5 * (rb_ - ra) / h_seg if h_seg > 0 else 0.0
+                rhs = target - Fa
+                if abs(c2) < 1e-15:
+                    h = rhs / ra
+                else:
+                    h = (2.0 * rhs) / (ra + math.sqrt(max(ra * ra + 4.0 * c2 * rhs, 0.0)))
+                return xa + min(max(h, 0.0), h_seg)
+            xa, Ga, Fa = xb, Gb, Fb
+            j += 1
+
+    def _first_crossing(self, x: float, a: float, target: float, Ix: float) -> float:
+        pts = [x] + [float(p) for p in self.x if p > x]
+        for xa, xb in zip(pts[:-1], pts[1:]):
+            for h in np.linspace(0.0, xb - xa, 65)[1:]:
+                S = xa + h
+                if a * (S - x) + G * (self.integral_at(S) - Ix) >= target:
+                    lo, hi = xa + h - (xb - xa) / 64.0, S
+                    for _ in range(60):
+                        mid = 0.5 * (lo + hi)
+                        if a * (mid - x) + G * (self.integral_at(mid) - Ix) >= target:
+                            hi = mid
+                        else:
+                            lo = mid
+                    return hi
+        r = a + G * float(self.G[-1])
+        if r <= 0:
+            return math.inf
+        xl = pts[-1]
+        Fl = a * (xl - x) + G * (self.integral_at(xl) - Ix)
+        return xl + max(0.0, (target - Fl) / r)
+
+
+# -------------------------------------------------------------------------------------------
+# The proxies (eq. 12, 13) and the decelerations of §V
+
+
+class RobustProxies:
+    """RLP (eq. 12) and RUP (eq. 13) of one train, plus the decelerations e̲ and ē of §V."""
+
+    def __init__(self, bounds: BoxBounds, profile: RouteProfile | None = None):
+        self.b = bounds
+        self.route = GradeWindow(profile)
+
+    @classmethod
+    def from_stock(cls, stock: RollingStock, profile: RouteProfile | None = None) -> "RobustProxies":
+        return cls(BoxBounds.from_stock(stock), profile)
+
+    # ---- one-step accelerations ------------------------------------------------------------
+    def rlp_accel(self, v: float, u_n: float, rb: RouteBounds, v_ref: float | None = None) -> float:
+        """dx̲2/dt of the RLP, eq. 12, m/s².
+
+        u < 0: (−Ā − B̄·x2 − C̄·T̄_f·max(x2, x2(t0))²)/M̲ − g·σ_sup + u/M̲
+        u ≥ 0: (−Ā − B̄·x2 − C̄·T̄_f·x2²)/M̲ − g·σ_sup + min(u, U_max^rob(x2))/M̄
+        """
+        b = self.b
+        rho = b.rotating_mass_factor
+        if u_n < 0:
+            vc = max(v, v_ref) if v_ref is not None else v
+            res = b.davis_a_high_n + b.davis_b_high_n_per_mps * v + b.davis_c_high_n_per_mps2 * rb.tunnel_max * vc * vc
+            return (-res + u_n) / (rho * b.mass_low_kg) - G * rb.grade_max
+        res = b.davis_a_high_n + b.davis_b_high_n_per_mps * v + b.davis_c_high_n_per_mps2 * rb.tunnel_max * v * v
+        return -res / (rho * b.mass_low_kg) - G * rb.grade_max + min(u_n, b.robust_traction_max_n(v)) / (rho * b.mass_high_kg)
+
+    def rup_accel(self, v: float, u_n: float, rb: RouteBounds) -> float:
+        """dx̄2/dt of the RUP, eq. 13, m/s².
+
+        u < 0: −A̲/M̄ − g·σ_inf + max(u, −U_br^rob(x2))/M̄
+        u ≥ 0: (−A̲ − B̲·x2 − C̲·T̲_f·x2²)/M̄ − g·σ_inf + u/M̲
+        """
+        b = self.b
+        rho = b.rotating_mass_factor
+        if u_n < 0:
+            return (-b.davis_a_low_n + max(u_n, -b.robust_brake_max_n(v))) / (rho * b.mass_high_kg) - G * rb.grade_min
+        res = b.davis_a_low_n + b.davis_b_low_n_per_mps * v + b.davis_c_low_n_per_mps2 * rb.tunnel_min * v * v
+        return -res / (rho * b.mass_high_kg) - G * rb.grade_min + u_n / (rho * b.mass_low_kg)
+
+    # ---- integration -----------------------------------------------------------------------
+    def window(self, s0: float, v0: float, horizon_s: float) -> RouteBounds:
+        """Route bounds over every position the train can occupy within ``horizon_s`` from (s0, v0).
+
+        [s0 − L, s0 + max(V_max, v0)·T + ½·a_max·T²], the paper's s^H = x1 + V^max·T widened by the
+        largest acceleration of any train in the box (full traction down the steepest grade), so
+        it holds even for a train that exceeds V_max.
+        """
+        b = self.b
+        a_max = b.accel_high_mps2 / b.rotating_mass_factor + G * max(0.0, -self.route.global_bounds.grade_min)
+        reach = max(b.max_speed_ms, v0) * horizon_s + 0.5 * a_max * horizon_s * horizon_s
+        return self.route.bounds(s0 - b.length_m, s0 + reach)
+
+    def rollout(self, kind: str, s0: float, v0: float, forces_n: np.ndarray, dt: float, rb: RouteBounds | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate the RLP (``kind="lower"``) or RUP (``"upper"``) under a force sequence.
+
+        ``forces_n[k]`` is held over [t0 + k·Δt, t0 + (k+1)·Δt).  Explicit Euler exactly as
+        :class:`vcsumo.plant.TrainPlant` (speed clamped at 0).  Returns positions and speeds at
+        t0, t0 + Δt, …, t0 + n·Δt (n + 1 values).  ``rb`` defaults to the window over the whole
+        horizon at V_max (eq. 12–13 with s^H = x1 + V^max·n·Δt).
+        """
+        f = np.asarray(forces_n, dtype=float)
+        n = len(f)
+        if rb is None:
+            rb = self.window(s0, v0, n * dt)
+        s = np.empty(n + 1)
+        v = np.empty(n + 1)
+        s[0], v[0] = s0, v0
+        lower = kind == "lower"
+        if not lower and kind != "upper":
+            raise ValueError("kind must be 'lower' or 'upper'")
+        for k in range(n):
+            a = self.rlp_accel(v[k], f[k], rb, v0) if lower else self.rup_accel(v[k], f[k], rb)
+            v[k + 1] = max(0.0, v[k] + a * dt)
+            s[k + 1] = s[k] + v[k] * dt
+        return s, v
+
+    # ---- decelerations of §V ---------------------------------------------------------------
+    def leader_decel(self, v: float, rb: RouteBounds) -> float:
+        """e̲^L(x2): the "large" deceleration of a braking leader (§V), m/s² (positive).
+
+        (Ā + B̄·x2 + C̄·T̄_f·x2²)/M̲ + g·σ_sup + ā_br: resistance at the current speed (the highest
+        while braking), the steepest rising grade, the strongest brake in the box.  Under any input
+        a true leader starting at speed x2 has speed ≥ x2 − e̲^L·t (eq. 38).
+        """
+        b = self.b
+        res = b.davis_a_high_n + b.davis_b_high_n_per_mps * v + b.davis_c_high_n_per_mps2 * rb.tunnel_max * v * v
+        return res / (b.rotating_mass_factor * b.mass_low_kg) + G * rb.grade_max + b.brake_decel_high_mps2 / b.rotating_mass_factor
+
+    def follower_decel(self, v: float, rb: RouteBounds, epsilon: float) -> float:
+        """ē^F(x^F): the "small" deceleration of the follower under its emergency brake (§V), m/s².
+
+        A̲/M̄ + g·σ_inf + ε·α̲(x2), with α̲ from :meth:`BoxBounds.brake_decel_low` (it includes the
+        braking-power limit, eq. 6b, evaluated at the current – highest – speed).
+        """
+        b = self.b
+        return b.davis_a_low_n / (b.rotating_mass_factor * b.mass_high_kg) + G * rb.grade_min + epsilon * b.brake_decel_low(v)
+
+    def leader_path_bounds(self, s_from: float, s_to: float, v: float, t_max_s: float) -> RouteBounds:
+        """Route window for a leader's RLP between s_from and s_to: the train's length behind,
+        at least V_max·T^max ahead of s_from (§VI-B, s^H = x1 + V^max·T^max) and the braking
+        distance from speed v at the weakest possible e̲^L beyond s_to."""
+        b = self.b
+        g_glob = self.route.global_bounds
+        e_floor = b.brake_decel_high_mps2 / b.rotating_mass_factor + G * g_glob.grade_min
+        reach = v * v / (2.0 * e_floor) if e_floor > 0 else 0.0
+        end = max(s_to + reach, s_from + max(b.max_speed_ms * t_max_s, 0.0) + reach)
+        return self.route.bounds(s_from - b.length_m, end + 1.0)
+
+    def leader_stop_bounds(self, s: float, v: float, t_max_s: float) -> RouteBounds:
+        """:meth:`leader_path_bounds` for a single leader state (s, v)."""
+        return self.leader_path_bounds(s, s, v, t_max_s)
+
+    def follower_stop_bounds(self, s: float, v: float, epsilon: float, iterations: int = 2) -> tuple[RouteBounds, float]:
+        """Route window covering the follower's worst-case stop from (s, v), and ē^F over it.
+
+        Fixed point: start from the whole route's flattest-for-braking grade; each pass narrows the
+        window to [s − L, s + D_k] with D_k the stopping distance at the previous ē, which can only
+        shrink, so the last window still covers the stop (the ē it yields is valid).  Returns
+        (bounds, ē^F); ē^F ≤ 0 (cannot stop) gives an infinite distance to the caller.
+        """
+        b = self.b
+        rb = self.route.global_bounds
+        e = self.follower_decel(v, rb, epsilon)
+        for _ in range(iterations):
+            if e <= 0:
+                break
+            dist = v * v / (2.0 * e)
+            rb_new = self.route.bounds(s - b.length_m, s + dist + 1.0)
+            e_new = self.follower_decel(v, rb_new, epsilon)
+            if e_new <= e + 1e-12:
+                break
+            rb, e = rb_new, e_new
+        return rb, e
+
+
+def robust_plan(proxies: RobustProxies, s0: float, v0: float, forces_n: np.ndarray, dt: float, t0: float, every: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The leader's robust predicted trajectory x̲^L(t_κ) sent with each message (§III-C, §VI-D).
+
+    The leader's planned force sequence (from any controller on its nominal model) is applied
+    open loop to its own RLP (eq. 12) from the current state.  Returns (times, positions, speeds)
+    sub-sampled every ``every`` steps (the last point always included).
+    """
+    s, v = proxies.rollout("lower", s0, v0, forces_n, dt)
+    idx = np.arange(0, len(s), max(1, every))
+    if idx[-1] != len(s) - 1:
+        idx = np.append(idx, len(s) - 1)
+    return t0 + idx * dt, s[idx], v[idx]
