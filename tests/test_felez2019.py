@@ -1,0 +1,58 @@
+"""Reproduction of Felez, Kim & Borrelli (2019) §IV-A (Fig. 11, 12): bars on order and magnitude."""
+
+from __future__ import annotations
+
+import pytest
+
+from vcsumo.reproduce.felez2019 import PAPER, horizon_sweep, load_scenario, run_felez2019, simulate
+
+
+@pytest.fixture(scope="module")
+def table():
+    return run_felez2019(("SH", "NP", "MB"), horizon=40, n_trains=2).set_index("strategy")
+
+
+def test_columns_and_trajectories(table):
+    for col in ("stop_distance_m", "stop_delay_s", "min_gap_m", "collisions", "distance_m", "paper_distance_m", "paper_stop_delay_s"):
+        assert col in table.columns
+    traj = table.attrs["trajectories"]["SH"]
+    assert {"time_s", "s0_m", "v0_mps", "s1_m", "v1_mps", "gap1_m", "u1_n"} <= set(traj.columns)
+    assert traj["time_s"].iloc[-1] > 200.0
+
+
+def test_order_and_paper_values(table):
+    d = table["distance_m"]
+    assert d["SH"] < d["NP"] < d["MB"]
+    for strat in ("SH", "NP", "MB"):
+        paper = PAPER[strat]["distance_m"]
+        assert abs(d[strat] - paper) <= 0.25 * paper, (strat, d[strat], paper)
+    delay = table["stop_delay_s"]  # the paper: 2 / 17 / 23 s
+    assert 0.0 <= delay["SH"] < delay["NP"] < delay["MB"]
+    assert delay["SH"] <= 5.0  # "no significant delay"
+    assert abs(delay["MB"] - PAPER["MB"]["stop_delay_s"]) <= 0.25 * PAPER["MB"]["stop_delay_s"]
+
+
+def test_safe_and_feasible(table):
+    d_min = load_scenario().settings.d_min_m
+    assert (table["collisions"] == 0).all()
+    assert (table["min_gap_m"] >= d_min - 0.05).all()
+    assert (table["stop_distance_m"] >= d_min - 0.05).all()  # both at rest: between d_min and d_des
+    assert (table["stop_distance_m"] <= 10.0 + 0.5).all()
+    assert (table["infeasible_steps"] == 0).all()
+    # the leader stops 3,700 m from its start (§IV-A)
+    assert ((table["leader_stop_position_m"] - 3700.0).abs() < 1.0).all()
+
+
+def test_longer_horizon_shortens_sh_distance():
+    """Fig. 11: with SH the distance between trains decreases as N_p grows."""
+    sweep = horizon_sweep((20, 50)).set_index("horizon")
+    assert sweep.loc[50, "distance_m"] < sweep.loc[20, "distance_m"]
+    assert (sweep["min_gap_m"] >= 3.95).all()
+
+
+def test_unannounced_emergency_braking_is_unsafe_for_close_sh():
+    """Why SH needs the leader's braking in its plan: an unannounced emergency stop of the leader
+    with a^f = 0.75 ends below d_min (the terminal set 12m only covers braking after the horizon)."""
+    sc = load_scenario(leader_braking="emergency")
+    res = simulate("SH", 2, 40, sc)
+    assert res.metrics["min_gap_m"] < sc.settings.d_min_m
