@@ -13,7 +13,7 @@ def table():
 
 
 def test_columns_and_trajectories(table):
-    for col in ("stop_distance_m", "stop_delay_s", "min_gap_m", "collisions", "distance_m", "paper_distance_m", "paper_stop_delay_s"):
+    for col in ("gap_at_rest_m", "stop_delay_s", "min_gap_m", "collisions", "stop_distance_m", "paper_stop_distance_m", "paper_stop_delay_s"):
         assert col in table.columns
     traj = table.attrs["trajectories"]["SH"]
     assert {"time_s", "s0_m", "v0_mps", "s1_m", "v1_mps", "gap1_m", "u1_n"} <= set(traj.columns)
@@ -21,10 +21,10 @@ def test_columns_and_trajectories(table):
 
 
 def test_order_and_paper_values(table):
-    d = table["distance_m"]
+    d = table["stop_distance_m"]
     assert d["SH"] < d["NP"] < d["MB"]
     for strat in ("SH", "NP", "MB"):
-        paper = PAPER[strat]["distance_m"]
+        paper = PAPER[strat]["stop_distance_m"]
         assert abs(d[strat] - paper) <= 0.25 * paper, (strat, d[strat], paper)
     delay = table["stop_delay_s"]  # the paper: 2 / 17 / 23 s
     assert 0.0 <= delay["SH"] < delay["NP"] < delay["MB"]
@@ -36,8 +36,8 @@ def test_safe_and_feasible(table):
     d_min = load_scenario().settings.d_min_m
     assert (table["collisions"] == 0).all()
     assert (table["min_gap_m"] >= d_min - 0.05).all()
-    assert (table["stop_distance_m"] >= d_min - 0.05).all()  # both at rest: between d_min and d_des
-    assert (table["stop_distance_m"] <= 10.0 + 0.5).all()
+    assert (table["gap_at_rest_m"] >= d_min - 0.05).all()  # both at rest: between d_min and d_des
+    assert (table["gap_at_rest_m"] <= 10.0 + 0.5).all()
     assert (table["infeasible_steps"] == 0).all()
     # the leader stops 3,700 m from its start (§IV-A)
     assert ((table["leader_stop_position_m"] - 3700.0).abs() < 1.0).all()
@@ -46,7 +46,7 @@ def test_safe_and_feasible(table):
 def test_longer_horizon_shortens_sh_distance():
     """Fig. 11: with SH the distance between trains decreases as N_p grows."""
     sweep = horizon_sweep((20, 50)).set_index("horizon")
-    assert sweep.loc[50, "distance_m"] < sweep.loc[20, "distance_m"]
+    assert sweep.loc[50, "stop_distance_m"] < sweep.loc[20, "stop_distance_m"]
     assert (sweep["min_gap_m"] >= 3.95).all()
 
 

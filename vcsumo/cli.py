@@ -95,13 +95,16 @@ def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool)
 @click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
 @click.option("--timetable", required=True, help="Timetable name (routes/<line>/<name>.yaml) or path")
 @click.option("--regime", type=click.Choice(["fbs", "mb", "vc"]), required=True, help="Signalling regime")
-@click.option("--controller", default=None, help="VC controller (mpc, cbc, cbf-mpc, cbf-cbc, cbf-cruise); vc only")
+@click.option("--controller", default=None, help="VC controller: mpc, cbc, cbf-mpc, cbf-cbc, cbf-cruise (NAME:PARAMS picks a parameter file); vc only")
+@click.option("--channel", default=None, help="Train-to-train channel settings (controllers/<name>.yaml or a path; default: channel); vc only")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
-@click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step, s")
+@click.option("--step-length", type=float, default=None, help="SUMO step, s (default 0.5; 0.1 for vc)")
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--seed", type=int, default=42, show_default=True)
-def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, out: Path | None, step_length: float, block_length_m: float | None, seed: int) -> None:
+def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, channel: str | None, out: Path | None, step_length: float | None, block_length_m: float | None, seed: int) -> None:
     """Run a timetable on a line under one regime; write trajectories, stop events and a summary."""
+    if step_length is None:
+        step_length = 0.1 if regime == "vc" else 0.5
     from vcsumo.line import load_line
     from vcsumo.network import build_network
     from vcsumo.plots import plot_run
@@ -119,15 +122,14 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     if regime == "vc":
         from vcsumo.vc import make_vc_driver
 
-        driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed)
-    elif controller:
-        raise VcsumoError(f"--controller: only the vc regime takes a controller (regime is {regime})")
+        driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed, channel=channel)
+    elif controller or channel:
+        raise VcsumoError(f"--controller/--channel: only the vc regime takes a controller and a channel (regime is {regime})")
     out = out or default_out("run", f"{line.name}-{tt.name}-{regime}")
     with ResultsFolder(out, inputs={"line": line.path, "timetable": tt_path}, seed=seed,
                        params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m}) as rf:
         with _progress() as prog, _task(prog, f"{line.name} {tt.name} {regime}") as upd:
-            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver,
-                           min_safe_gap_m=driver.min_safe_gap_m if driver else 50.0)
+            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver)
             res = simulate(scn, rf.path, upd)
         plot_run(res.trajectories, rf.path / "time_distance.png", f"{line.name} {tt.name} {regime}")
         if driver is not None:
@@ -202,6 +204,56 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
             df = run_headway_study(line, net, stocks, regimes, rf.path, pts, step_s=step_length, n_trains=trains_per_run, progress_factory=factory)
     _print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct", "speed_at_point_mps"])
     out_console.print(f"wrote {out / 'headway.csv'}")
+
+
+# ----------------------------------------------------------------------------------------------
+@cli.group("reproduce")
+def reproduce() -> None:
+    """Reproduce the seed papers' experiments (offline, on the papers' own train model)."""
+
+
+@reproduce.command("felez2019")
+@click.option("--strategies", default="SH,NP,MB", show_default=True, help="Leader predictors (eq. 16-18)")
+@click.option("--horizon", type=int, default=40, show_default=True, help="Prediction horizon N_p, steps")
+@click.option("--no-sweep", is_flag=True, help="Skip the horizon sweep 20-60 (Fig. 11)")
+@click.option("--no-convoy", is_flag=True, help="Skip the 4-train convoy (Fig. 10)")
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
+def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool, out: Path | None) -> None:
+    """Felez, Kim & Borrelli (2019) §IV-A: SH / NP / MB stop distance and delay, convoy, horizon sweep."""
+    from vcsumo.reproduce.report import reproduce_felez2019
+    from vcsumo.results import ResultsFolder, default_out
+
+    strats = tuple(x.strip().upper() for x in strategies.split(",") if x.strip())
+    bad = [x for x in strats if x not in ("SH", "NP", "MB")]
+    if bad or not strats:
+        raise VcsumoError(f"--strategies: unknown strategy {bad or strategies} (choose from SH, NP, MB)")
+    if not 2 <= horizon <= 400:
+        raise VcsumoError(f"--horizon: {horizon} steps is outside 2-400")
+    out = out or default_out("reproduce", "felez2019")
+    with ResultsFolder(out, params={"strategies": strats, "horizon": horizon}) as rf:
+        with _progress() as prog, _task(prog, "felez2019") as upd:
+            table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
+    _print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
+                 ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions"])
+    out_console.print(f"wrote {out / 'felez2019.csv'}")
+
+
+@reproduce.command("terlizzi2024")
+@click.option("--scenario", type=click.Choice(["os1", "os2", "both"]), default="both", show_default=True)
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
+def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
+    """Terlizzi, Liuzza & Glielmo (2024) OS1 (delays 3 s / 0.8 s) and OS2 (delay estimator on/off)."""
+    from vcsumo.reproduce.report import reproduce_terlizzi2024
+    from vcsumo.results import ResultsFolder, default_out
+
+    scen = ("os1", "os2") if scenario == "both" else (scenario,)
+    out = out or default_out("reproduce", "terlizzi2024")
+    with ResultsFolder(out, params={"scenarios": scen}) as rf:
+        with _progress() as prog, _task(prog, "terlizzi2024") as upd:
+            summary = reproduce_terlizzi2024(rf.path, scen, progress=upd)
+    cols = [c for c in ["run", "coupled_distance_m", "emergency_activations", "min_gap_m", "both_stopped_gap_m", "true_barrier_max", "robust_barrier_max"] if c in summary]
+    _print_table(summary, "Terlizzi et al. (2024) — reproduced", cols)
+    out_console.print(f"wrote {out}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -55,3 +55,62 @@ def plot_run(traj: pd.DataFrame, path: Path, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_felez2019(trajectories: dict, path: Path) -> None:
+    """Speed, gap and force over time for each strategy (Felez et al. Fig. 10-12)."""
+    fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    for name, tr in trajectories.items():
+        trains = sorted({c[1:-4] for c in tr.columns if c.startswith("v") and c.endswith("_mps")}, key=int)
+        for i in trains:
+            style = "-" if i == "0" else "--"
+            label = f"{name} train {i}" if i != "0" else f"{name} leader"
+            axes[0].plot(tr.time_s, tr[f"v{i}_mps"], style, lw=1, label=label)
+            if f"gap{i}_m" in tr:
+                axes[1].plot(tr.time_s, tr[f"gap{i}_m"], lw=1, label=f"{name} gap {int(i) - 1}-{i}")
+            if f"F{i}_n" in tr:
+                axes[2].plot(tr.time_s, tr[f"F{i}_n"] / 1000.0, style, lw=1, label=label)
+    axes[0].set_ylabel("speed [m/s]")
+    axes[1].set_ylabel("gap [m]")
+    axes[2].set_ylabel("force [kN]")
+    axes[2].set_xlabel("time [s]")
+    for a in axes:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7, ncol=3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_terlizzi2024(traj: pd.DataFrame, path: Path, title: str = "") -> None:
+    """Barrier, gap, speeds, forces and active controller mode over time (Terlizzi et al. Fig. 5-6)."""
+    fig, axes = plt.subplots(5, 1, figsize=(10, 12), sharex=True)
+    t = traj.time_s
+    if "true_barrier_m" in traj:
+        axes[0].plot(t, traj.true_barrier_m, lw=1, label="true barrier b(x)")
+    if "robust_barrier_m" in traj:
+        axes[0].plot(t, traj.robust_barrier_m, lw=1, label="robust barrier")
+    axes[0].axhline(0.0, color="k", lw=0.8)
+    axes[0].set_ylabel("barrier [m]")
+    axes[1].plot(t, traj.gap_m, lw=1, label="gap (front-to-rear)")
+    axes[1].set_ylabel("gap [m]")
+    axes[2].plot(t, traj.leader_speed_mps, lw=1, label="leader")
+    axes[2].plot(t, traj.follower_speed_mps, lw=1, label="follower")
+    axes[2].set_ylabel("speed [m/s]")
+    axes[3].plot(t, traj.leader_force_n / 1000.0, lw=1, label="leader")
+    axes[3].plot(t, traj.follower_force_n / 1000.0, lw=1, label="follower")
+    axes[3].set_ylabel("force [kN]")
+    modes = traj["mode"].astype(str)
+    order = sorted(modes.unique())
+    axes[4].step(t, modes.map({m: k for k, m in enumerate(order)}), where="post", lw=1)
+    axes[4].set_yticks(range(len(order)), order)
+    axes[4].set_ylabel("mode")
+    axes[4].set_xlabel("time [s]")
+    axes[0].set_title(title)
+    for a in axes:
+        a.grid(alpha=0.3)
+    for a in axes[:4]:
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

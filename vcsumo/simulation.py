@@ -9,8 +9,12 @@ One loop for every regime:
   safety supervisor) through ``setSpeed`` with speed mode 30.
 
 Every step the loop switches vTypes at tunnel portals (tunnel drag, the same for every regime),
-measures the gap from each train to the train ahead, counts gap violations (gap below the
-minimum safe gap), SUMO collisions and emergency braking, and records measuring-point passages.
+measures the gap from each train to the train ahead, counts gap violations, SUMO collisions and
+emergency braking, and records measuring-point passages.  A gap violation is the gap falling below
+the minimum safe gap that applies to the train at that moment (the controller's d_min while a
+vcsumo driver drives it, else the 50 m moving-block margin above 30 km/h); the time spent below it
+is reported too (``gap_violation_time_s``), also when a train starts below it (a convoy forming
+behind a leader that left less than d_min ahead), and so is the minimum gap.
 Everything is written into the run's folder as tidy CSV plus SUMO's own outputs.
 """
 
@@ -75,6 +79,10 @@ class Driver(Protocol):
         """Speed commands (m/s) for the trains it drives this step; other trains stay with SUMO."""
         ...
 
+    def safe_gap_m(self, train_id: str) -> float:
+        """Minimum safe gap (the controller's d_min) of a train while the driver drives it, m."""
+        ...
+
 
 @dataclass
 class Scenario:
@@ -88,6 +96,8 @@ class Scenario:
     record_period_s: float = 1.0
     measuring_points: list[MeasuringPoint] = field(default_factory=list)
     min_safe_gap_m: float = 50.0
+    """Minimum safe gap of trains SUMO drives (FBS/MB: the 50 m moving-block margin), m; trains a
+    vcsumo driver drives are held to the driver's ``safe_gap_m`` (the controller's d_min)."""
     seed: int = 42
     end_time_s: float | None = None
     lookahead_m: float = 30000.0
@@ -127,7 +137,8 @@ class _Track:
     sync_odo: float = math.nan
     tf: float = 1.0
     min_gap: float = math.inf
-    in_violation: bool = False
+    armed: bool = False
+    threshold: float = math.nan
     violations: int = 0
     violation_time: float = 0.0
     in_emergency: bool = False
@@ -216,13 +227,16 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 gap = lead[1] if lead else math.inf
                 tr.min_gap = min(tr.min_gap, gap)
                 counts = tr.controlled or ob.speed_mps > scn.on_sight_speed_mps
-                if gap < scn.min_safe_gap_m and counts:
+                threshold = scn.driver.safe_gap_m(vid) if (tr.controlled and scn.driver is not None) else scn.min_safe_gap_m
+                if threshold != tr.threshold:
+                    tr.threshold, tr.armed = threshold, False
+                if gap >= threshold:
+                    tr.armed = True
+                elif counts:
                     tr.violation_time += dt
-                    if not tr.in_violation:
+                    if tr.armed:  # a violation: the gap fell below the safe gap from above
                         tr.violations += 1
-                    tr.in_violation = True
-                else:
-                    tr.in_violation = False
+                    tr.armed = False
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))
                     tr_s.append(tr.s)

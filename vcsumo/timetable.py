@@ -267,7 +267,7 @@ def routes_xml(trains: list[PlannedTrain], topo: Topology) -> str:
     for st in stocks.values():
         for tf in factors:
             out.append("  " + st.vtype_xml(tf))
-    for t in sorted(trains, key=lambda x: (x.depart_s, x.id)):
+    for t in sorted(trains, key=lambda x: x.depart_s):  # stable: equal times keep planning order (convoy leader first)
         first_tf = topo.edges[t.edges[0]].tunnel_factor
         speed = "0" if t.depart_speed_mps <= 0 else f"{t.depart_speed_mps:.4f}"
         out.append(

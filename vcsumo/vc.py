@@ -1,0 +1,500 @@
+"""Virtual coupling in the SUMO loop: convoys, messages, controllers and the safety filter.
+
+:class:`VCDriver` is the :class:`~vcsumo.simulation.Driver` of the ``vc`` regime.  Each step it
+
+1. lets every convoy member send a train-to-train message through the seeded
+   :class:`~vcsumo.control.channel.Channel` (state, and a predicted trajectory: the convoy leader's
+   is its unhindered running profile from its current state — the plan its ATO would follow; a
+   follower's is its controller's last plan);
+2. builds, for every coupled follower, an :class:`~vcsumo.control.base.Observation` with what the
+   channel delivered mapped into the follower's own route frame, the on-board sensed gap and
+   speed of the predecessor (once it is the train SUMO sees ahead), and its route profile;
+3. asks the follower's controller for a force (MPC, consensus, Terlizzi's switched cruise
+   controller) and passes it through the CBF supervisor when the controller name starts with
+   ``cbf-``;
+4. turns the force into the speed the train reaches after one step under eq. 1b (the shared train
+   model), caps it with the relative-braking guard (:func:`guard_speed`) — the last filter stage,
+   applied to every controller — and the loop sends it to SUMO with speed mode 30 (traction and
+   braking limits and red signals still enforced by SUMO, SUMO's own braking-distance rule off).
+
+The guard is the nominal relative-braking-distance condition (Felez et al. eq. 12m, Wu et al. eq.
+3.1): after one step the follower must be able to stop at its service deceleration at least
+d_min behind the point where the predecessor would stop under emergency braking started when its
+latest information was taken (sensed: now; communicated: at the message's time stamp).  The CBF
+supervisor (``cbf-`` controllers) is the robust version of the same idea, with the parameter
+uncertainty of Terlizzi et al. eq. 7; the guard only catches what a nominal controller would let
+through.  Its interventions are counted.
+
+Convoy leaders and trains outside convoys stay with SUMO (moving block).  A follower is coupled
+while its predecessor is on the part of its route they share (through a merge, the gap is the
+difference of their distances to the merge point); after a split it is handed back to SUMO.
+
+Stations.  Convoy members leaving the same platform together depart at the leader's time, the
+follower standing behind the leader at its standstill gap (the convoy stands in the platform as
+one train, as in Felez et al. §IV-B).  The controllers know nothing of stops: a follower is handed
+to SUMO for its own station stop once its stop is within braking distance and either its speed is
+below 30 km/h (SUMO's on-sight moving-block rule lets it close up behind the standing leader) or
+the moving-block distance to its predecessor is already kept; it is coupled again once it has
+left the stop.
+
+Controller names: ``mpc``, ``cbc``, ``cbf-mpc``, ``cbf-cbc``, ``cbf-cruise``; a parameter file can
+be named after a colon, e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part always reads
+``controllers/cbf.yaml`` unless ``cbf_config`` is given).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
+from vcsumo.control.channel import Channel, ChannelConfig
+from pydantic import Field
+
+from vcsumo.config import StrictModel, load_model
+from vcsumo.dynamics import acceleration, gradient_force, running_resistance
+from vcsumo.errors import InputError, VcsumoError
+from vcsumo.line import project_root
+from vcsumo.running_time import unhindered_run
+from vcsumo.simulation import Snapshot
+from vcsumo.timetable import PlannedTrain, TimetableFile
+
+VC_CONTROLLERS = ("mpc", "cbc", "cbf-mpc", "cbf-cbc", "cbf-cruise")
+
+
+def controllers_dir() -> Path:
+    return project_root() / "controllers"
+
+
+def _param_path(spec: str | None, default: str) -> Path:
+    name = spec or default
+    p = Path(name)
+    if p.suffix in (".yaml", ".yml"):
+        if not p.is_file():
+            raise InputError(p, None, "controller parameter file not found")
+        return p
+    cand = controllers_dir() / f"{name}.yaml"
+    if not cand.is_file():
+        avail = ", ".join(sorted(x.stem for x in controllers_dir().glob("*.yaml")))
+        raise InputError(None, "--controller", f"unknown controller parameter set '{name}' (available: {avail})")
+    return cand
+
+
+def parse_controller(spec: str) -> tuple[str, str | None]:
+    """'cbf-cbc:cbc_plf' -> ('cbf-cbc', 'cbc_plf')."""
+    name, _, params = spec.partition(":")
+    if name not in VC_CONTROLLERS:
+        raise InputError(None, "--controller", f"unknown controller '{name}' (choose from {', '.join(VC_CONTROLLERS)})")
+    return name, params or None
+
+
+class GuardConfig(StrictModel):
+    """Decelerations of the relative-braking guard (the last filter stage of every VC controller)."""
+
+    leader_decel: str = Field(default="emergency", pattern="^(emergency|service)$", description="Predecessor's worst case: its emergency or service deceleration")
+    follower_decel: str = Field(default="service", pattern="^(emergency|service)$", description="Follower's guaranteed deceleration (SUMO applies at most service decel + resistance)")
+
+
+def load_guard(spec: str | Path | None) -> GuardConfig:
+    """Guard settings: a YAML file or a name in controllers/ (default ``guard``)."""
+    return load_model(GuardConfig, _param_path(str(spec) if spec else None, "guard"))
+
+
+def load_channel(spec: str | Path | None) -> ChannelConfig:
+    """Channel settings: a YAML file, a name in controllers/ (default ``channel``)."""
+    return load_model(ChannelConfig, _param_path(str(spec) if spec else None, "channel"))
+
+
+# -------------------------------------------------------------------------------------------
+# Convoys from the timetable
+
+
+def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain]) -> list[list[PlannedTrain]]:
+    """Convoys as lists of planned trains (leader first); repeated services pair up by index."""
+    by_service: dict[str, list[PlannedTrain]] = {}
+    for t in trains:
+        by_service.setdefault(t.service, []).append(t)
+    out: list[list[PlannedTrain]] = []
+    used: set[str] = set()
+    for c_i, cv in enumerate(tt.convoys):
+        counts = {s: len(by_service.get(s, [])) for s in cv.services}
+        for s_i, s in enumerate(cv.services):
+            if counts[s] == 0:
+                raise InputError(tt_path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{s}', which does not exist")
+            if s in used:
+                raise InputError(tt_path, f"convoys[{c_i}].services[{s_i}]", f"service '{s}' is already in another convoy")
+        if len(set(counts.values())) != 1:
+            raise InputError(tt_path, f"convoys[{c_i}].services", f"services of convoy '{cv.id}' repeat a different number of times: {counts}")
+        used |= set(cv.services)
+        for k in range(next(iter(counts.values()))):
+            members = [by_service[s][k] for s in cv.services]
+            shared = set(members[0].edges)
+            for m in members[1:]:
+                if not shared & set(m.edges):
+                    raise InputError(tt_path, f"convoys[{c_i}]", f"trains of convoy '{cv.id}' share no track ({members[0].id} / {m.id})")
+            out.append(members)
+    if not out:
+        raise InputError(tt_path, "convoys", "the vc regime needs at least one convoy in the timetable (convoys: [{id, services: [leader, follower]}])")
+    return out
+
+
+# -------------------------------------------------------------------------------------------
+# Route frames
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Maps positions of train ``a`` into the route frame of train ``b`` through their shared track."""
+
+    offset_m: float
+    """pos_b = pos_a + offset."""
+    shared_end_a_m: float
+    """End of the shared stretch in a's frame (after it the routes part)."""
+    shared_end_b_m: float
+
+
+def frame(a: PlannedTrain, b: PlannedTrain) -> Frame | None:
+    pos_b = {e: i for i, e in enumerate(b.edges)}
+    first = next((i for i, e in enumerate(a.edges) if e in pos_b), None)
+    if first is None:
+        return None
+    j = pos_b[a.edges[first]]
+    i = first
+    while i + 1 < len(a.edges) and j + 1 < len(b.edges) and a.edges[i + 1] == b.edges[j + 1]:
+        i += 1
+        j += 1
+    pa, pb = a.profile, b.profile
+    offset = float(pb.starts_m[pos_b[a.edges[first]]] - pa.starts_m[first])
+    return Frame(offset, float(pa.starts_m[i] + pa.lengths_m[i]), float(pb.starts_m[j] + pb.lengths_m[j]))
+
+
+# -------------------------------------------------------------------------------------------
+# Controllers
+
+
+def _make_controller(name: str, params_spec: str | None, pred: PlannedTrain, ego: PlannedTrain, step_s: float, cbf_config: str | None):
+    """(nominal controller, supervisor or None, d_min) for one follower."""
+    base = name.removeprefix("cbf-")
+    supervisor = None
+    if base == "cbc":
+        from vcsumo.control.consensus import ConsensusController, load_cbc_params
+
+        prm = load_cbc_params(_param_path(params_spec, "cbc"))
+        nominal = ConsensusController(prm)
+        d_min = prm.gap.d_min_m
+    elif base == "mpc":
+        from vcsumo.control.mpc import FollowerMPC, load_mpc_settings
+
+        settings = load_mpc_settings(_param_path(params_spec, "mpc"))
+        if abs(settings.step_s - step_s) > 1e-9:
+            settings = settings.model_copy(update={"step_s": step_s})
+        nominal = FollowerMPC(ego.stock.params(), settings, route_end_m=ego.profile.length_m)
+        d_min = settings.d_min_m
+    elif base == "cruise":
+        from vcsumo.control.cbf import load_cbf_config
+        from vcsumo.control.cruise import SwitchedCruiseController, load_cruise_config
+
+        cbf_cfg = load_cbf_config(_param_path(cbf_config, "cbf"))
+        nominal = SwitchedCruiseController(pred.stock, ego.stock, load_cruise_config(_param_path(params_spec, "cruise_terlizzi2024")), cbf_cfg, leader_id=pred.id)
+        d_min = cbf_cfg.safety_distance_m
+    else:  # pragma: no cover - names are checked by parse_controller
+        raise VcsumoError(f"unknown controller {name}")
+    if name.startswith("cbf-"):
+        from vcsumo.control.cbf import CBFSupervisor, load_cbf_config
+
+        cfg = load_cbf_config(_param_path(cbf_config, "cbf"))
+        supervisor = CBFSupervisor(pred.stock, ego.stock, cfg, leader_id=pred.id)
+        d_min = max(d_min, cfg.safety_distance_m)
+    return nominal, supervisor, d_min
+
+
+def guard_speed(s_f_m: float, b_f_mps2: float, dt_s: float, s_l_m: float, v_l_mps: float, leader_length_m: float, a_l_mps2: float, d_min_m: float) -> float:
+    """Highest follower speed for the next step that keeps the relative braking distance, m/s.
+
+    Worst case for the predecessor: braking at ``a_l`` from the state (s_l, v_l) it was last known
+    in — sensed now or communicated earlier; the stopping point s_l + v_l²/(2·a_l) is the same
+    whenever after that moment the braking started, so old information is still a valid bound.
+    The follower keeps its speed for one step (Δt) and then brakes at ``b_f``:
+    v·Δt + v²/(2·b_f) ≤ s_l + v_l²/(2·a_l) − L_l − d_min − s_f.
+    """
+    stop_l = s_l_m + v_l_mps * v_l_mps / (2.0 * a_l_mps2)
+    room = stop_l - leader_length_m - d_min_m - s_f_m
+    if room <= 0.0:
+        return 0.0
+    return b_f_mps2 * (-dt_s + math.sqrt(dt_s * dt_s + 2.0 * room / b_f_mps2))
+
+
+def leader_plan(t: PlannedTrain, s_m: float, v_mps: float, now_s: float, horizon_s: float, dt: float, stops_after: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The convoy leader's predicted trajectory: its unhindered running profile from its state."""
+    from vcsumo.running_time import Stop
+
+    run = unhindered_run(t.stock.params(), t.profile, dt=dt, s0=s_m, v0=v_mps, stops=[Stop(x.s_m, x.dwell_s) for x in stops_after],
+                         end_s=t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m),
+                         stop_at_end=t.stop_at_end, t_max=horizon_s)
+    p = t.stock.params()
+    v = run.speed_mps.to_numpy()
+    a = run.accel_mps2.to_numpy()
+    s = run.s_m.to_numpy()
+    grads = np.array([t.profile.mean_gradient(x, p.length_m) for x in s])
+    tfs = np.array([t.profile.tunnel_factor_at(x) for x in s])
+    force = p.mass_kg * p.rotating_mass_factor * a + running_resistance(p, v, tfs) + gradient_force(p, grads)
+    return now_s + run.time_s.to_numpy(), s, v, force
+
+
+@dataclass
+class _Follower:
+    plan: PlannedTrain
+    pred: PlannedTrain
+    convoy: tuple[str, ...]
+    nominal: object
+    supervisor: object | None
+    d_min: float
+    frames: dict[str, Frame]
+    coupled: bool = False
+    last_cmd: Command | None = None
+    steps: int = 0
+    infeasible: int = 0
+    emergency_steps: int = 0
+    emergency_episodes: int = 0
+    in_emergency: bool = False
+    interventions: int = 0
+    guard_interventions: int = 0
+    solve_ms: list[float] = field(default_factory=list)
+    modes: dict[str, int] = field(default_factory=dict)
+    coupled_since_s: float = math.nan
+    released_at_s: float = math.nan
+    stops_m: list[float] = field(default_factory=list)
+    next_stop: int = 0
+    stop_handovers: int = 0
+    at_stop: bool = False
+
+
+class VCDriver:
+    """The vc-regime driver: convoys, channel, controllers, CBF filter (see module doc)."""
+
+    def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
+                 cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None):
+        self.name, self.params_spec = parse_controller(controller)
+        self.step_s = step_s
+        self.channel = Channel((channel or ChannelConfig(model="ideal", period_s=step_s)).model_copy(update={"seed": seed}))
+        self.plan_horizon_s = plan_horizon_s
+        self.guard = guard or GuardConfig()
+        self.trains: dict[str, PlannedTrain] = {}
+        self.convoy_of: dict[str, tuple[str, ...]] = {}
+        self.followers: dict[str, _Follower] = {}
+        self.record_every_s = record_every_s
+        self._next_record = -math.inf
+        self.records: list[dict] = []
+        for members in convoys:
+            ids = tuple(m.id for m in members)
+            for m in members:
+                self.trains[m.id] = m
+                self.convoy_of[m.id] = ids
+            for k in range(1, len(members)):
+                ego, pred = members[k], members[k - 1]
+                nominal, sup, d_min = _make_controller(self.name, self.params_spec, pred, ego, step_s, cbf_config)
+                frames = {}
+                for other in members:
+                    if other.id != ego.id:
+                        f = frame(other, ego)
+                        if f is not None:
+                            frames[other.id] = f
+                stops = [x.s_m for x in ego.stops]
+                if ego.final_stop is not None:
+                    stops.append(ego.final_stop.s_m)
+                elif ego.end_pos_m is not None and ego.stop_at_end:
+                    stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
+                self.followers[ego.id] = _Follower(ego, pred, ids, nominal, sup, d_min, frames, stops_m=stops)
+        self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
+        arrange_convoy_departures(convoys, {fid: f.d_min + 2.0 for fid, f in self.followers.items()})
+
+    # -----------------------------------------------------------------------------------
+    def _send(self, snap: Snapshot) -> None:
+        t = snap.time_s
+        for tid, st in snap.trains.items():
+            if tid not in self.convoy_of or not self.channel.due(tid, t):
+                continue
+            plan = self.trains[tid]
+            f = self.followers.get(tid)
+            times = pos = spd = frc = None
+            if f is None:  # convoy leader: its unhindered profile from its state
+                rest = [x for x in plan.stops if x.s_m > st.s_m + 1.0]
+                times, pos, spd, frc = leader_plan(plan, st.s_m, st.speed_mps, t, self.plan_horizon_s, self.step_s, rest)
+            elif f.last_cmd is not None and f.last_cmd.plan_times_s is not None:
+                times, pos, spd, frc = f.last_cmd.plan_times_s, f.last_cmd.plan_positions_m, f.last_cmd.plan_speeds_mps, f.last_cmd.plan_forces_n
+            force = f.last_cmd.force_n if f is not None and f.last_cmd is not None else (float(frc[0]) if frc is not None else 0.0)
+            for other in self.convoy_of[tid]:
+                if other == tid or other not in self.followers:
+                    continue
+                fr = self.followers[other].frames.get(tid)
+                if fr is None:
+                    continue
+                off = fr.offset_m
+                msg = Message(
+                    sender=tid, sent_time_s=t, length_m=plan.stock.length_m,
+                    state=TrainStateMsg(t, st.s_m + off, st.speed_mps, st.accel_mps2, force),
+                    plan_times_s=times, plan_positions_m=None if pos is None else pos + off, plan_speeds_mps=spd, plan_forces_n=frc,
+                )
+                self.channel.send(msg, [other], t)
+
+    def make_step(self, snap: Snapshot) -> dict[str, float]:
+        """Speed commands for the coupled followers present in the snapshot."""
+        self._send(snap)
+        t = snap.time_s
+        commands: dict[str, float] = {}
+        record = t >= self._next_record - 1e-9
+        if record:
+            self._next_record = t + self.record_every_s
+        for fid, f in self.followers.items():
+            st = snap.trains.get(fid)
+            pst = snap.trains.get(f.pred.id)
+            received = self.channel.deliver(fid, t)
+            if st is None:
+                continue
+            fr = f.frames.get(f.pred.id)
+            coupled = (
+                pst is not None and fr is not None and pst.s_m - f.pred.stock.length_m <= fr.shared_end_a_m and st.s_m <= fr.shared_end_b_m
+                and (pst.s_m + fr.offset_m) - f.pred.stock.length_m > st.s_m  # the predecessor is ahead
+            )
+            # station stops are SUMO's (see module doc)
+            while f.next_stop < len(f.stops_m) and st.s_m > f.stops_m[f.next_stop] + 1.0:
+                f.next_stop += 1
+                f.at_stop = False
+            if coupled and f.next_stop < len(f.stops_m):
+                b = f.plan.stock.service_brake_decel_mps2
+                v = st.speed_mps
+                to_stop = f.stops_m[f.next_stop] - st.s_m
+                gap = (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m
+                mb_kept = gap >= v * v / (2 * b) + 0.5 * self.step_s * v + 50.0
+                if f.at_stop or (to_stop <= v * v / (2 * b) + 150.0 and (v < 30.0 / 3.6 or mb_kept)):
+                    if not f.at_stop:
+                        f.stop_handovers += 1
+                    f.at_stop = True
+                    coupled = False
+            if not coupled:
+                if f.coupled:
+                    f.released_at_s = t
+                f.coupled = False
+                continue
+            if not f.coupled:
+                f.coupled = True
+                f.coupled_since_s = t
+            sensed_gap = st.gap_m if st.leader == f.pred.id else None
+            sensed_speed = pst.speed_mps if st.leader == f.pred.id else None
+            obs = Observation(
+                time_s=t, step_s=self.step_s, ego_id=fid,
+                ego=TrainStateMsg(t, st.s_m, st.speed_mps, st.accel_mps2, f.last_cmd.force_n if f.last_cmd else 0.0),
+                params=f.plan.stock.params(), profile=f.plan.profile, received=received, predecessor=f.pred.id, convoy=f.convoy,
+                sensed_gap_m=sensed_gap, sensed_speed_mps=sensed_speed,
+            )
+            t0 = time.perf_counter()
+            cmd = f.nominal.make_step(obs)
+            if f.supervisor is not None:
+                filtered = f.supervisor.filter(obs, cmd)
+                if filtered.force_n != cmd.force_n:
+                    f.interventions += 1
+                cmd = filtered
+            f.solve_ms.append(1000.0 * (time.perf_counter() - t0))
+            f.last_cmd = cmd
+            f.steps += 1
+            f.infeasible += int(cmd.infeasible)
+            f.modes[cmd.mode] = f.modes.get(cmd.mode, 0) + 1
+            if cmd.emergency:
+                f.emergency_steps += 1
+                if not f.in_emergency:
+                    f.emergency_episodes += 1
+            f.in_emergency = cmd.emergency
+            p = f.plan.stock.params()
+            force = float(cmd.force_n)
+            grad = f.plan.profile.mean_gradient(st.s_m, p.length_m)
+            tf = f.plan.profile.tunnel_factor_at(st.s_m)
+            v_next = max(0.0, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, force, grad, tf)))
+            # last filter stage: the relative-braking guard, on the best information on board
+            if sensed_gap is not None and sensed_speed is not None:
+                s_l, v_l = st.s_m + sensed_gap + f.pred.stock.length_m, sensed_speed
+            else:
+                m = received.get(f.pred.id)
+                s_l, v_l = (m.state.position_m, m.state.speed_mps) if m is not None else (st.s_m, 0.0)
+            b_f = p.emergency_brake_decel_mps2 if self.guard.follower_decel == "emergency" else p.service_brake_decel_mps2
+            ps = f.pred.stock
+            a_l = ps.emergency_brake_decel_mps2 if self.guard.leader_decel == "emergency" else ps.service_brake_decel_mps2
+            v_guard = guard_speed(st.s_m, b_f, self.step_s, s_l, v_l, ps.length_m, a_l, f.d_min)
+            if v_next > v_guard + 1e-9:
+                f.guard_interventions += 1
+                v_next = v_guard
+            commands[fid] = v_next
+            if record:
+                gap_comm = None
+                m = received.get(f.pred.id)
+                if m is not None:
+                    gap_comm = m.state.position_m - m.length_m - st.s_m
+                self.records.append({
+                    "time_s": t, "train": fid, "predecessor": f.pred.id, "km": st.km, "speed_mps": st.speed_mps,
+                    "predecessor_speed_mps": pst.speed_mps, "gap_m": (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m,
+                    "sensed_gap_m": sensed_gap, "communicated_gap_m": gap_comm, "force_n": cmd.force_n, "mode": cmd.mode,
+                    "emergency": cmd.emergency, "infeasible": cmd.infeasible,
+                    "barrier_true_m": cmd.info.get("cbf_true_barrier_m"), "barrier_robust_m": cmd.info.get("cbf_robust_barrier_m"),
+                })
+        return commands
+
+    # -----------------------------------------------------------------------------------
+    def safe_gap_m(self, train_id: str) -> float:
+        f = self.followers.get(train_id)
+        return f.d_min if f is not None else 50.0
+
+    def summary(self) -> dict:
+        fs = list(self.followers.values())
+        solve = np.concatenate([np.asarray(f.solve_ms) for f in fs]) if fs and any(f.solve_ms for f in fs) else np.array([])
+        return {
+            "controller": self.name + (f":{self.params_spec}" if self.params_spec else ""), "convoy_followers": len(fs),
+            "coupled_steps": int(sum(f.steps for f in fs)), "controller_infeasible_steps": int(sum(f.infeasible for f in fs)),
+            "vc_emergency_activations": int(sum(f.emergency_episodes for f in fs)), "vc_emergency_steps": int(sum(f.emergency_steps for f in fs)),
+            "supervisor_interventions": int(sum(f.interventions for f in fs)),
+            "guard_interventions": int(sum(f.guard_interventions for f in fs)),
+            "controller_step_median_ms": float(np.median(solve)) if solve.size else None,
+            "controller_step_p99_ms": float(np.percentile(solve, 99)) if solve.size else None,
+            "channel_sent": self.channel.sent, "channel_lost": self.channel.lost,
+        }
+
+    def write_report(self, out: Path) -> None:
+        """``vc_followers.csv`` (per follower step records) and ``vc_summary.json``."""
+        pd.DataFrame(self.records).to_csv(out / "vc_followers.csv", index=False)
+        per = []
+        for fid, f in self.followers.items():
+            per.append({"train": fid, "predecessor": f.pred.id, "coupled_steps": f.steps, "infeasible_steps": f.infeasible, "stop_handovers": f.stop_handovers,
+                        "emergency_activations": f.emergency_episodes, "supervisor_interventions": f.interventions, "guard_interventions": f.guard_interventions,
+                        "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes})
+        (out / "vc_summary.json").write_text(json.dumps({"summary": self.summary(), "followers": per}, indent=2, default=str))
+
+
+def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], window_s: float = 300.0) -> None:
+    """Members leaving the leader's platform within ``window_s`` depart with it, standing behind it.
+
+    The follower's front is placed ``standstill_gap_m`` behind the rear of the train ahead on the
+    same departure edge; if the convoy does not fit on that edge, the follower keeps its own time.
+    """
+    for members in convoys:
+        for k in range(1, len(members)):
+            ego, ahead = members[k], members[k - 1]
+            if ego.edges[0] != ahead.edges[0] or abs(ego.depart_s - ahead.depart_s) > window_s or ahead.depart_speed_mps > 0:
+                continue
+            pos = ahead.depart_pos_m - ahead.stock.length_m - standstill_gap_m.get(ego.id, 10.0)
+            if pos < ego.stock.length_m:
+                continue
+            ego.depart_s = ahead.depart_s
+            ego.depart_pos_m = pos
+            ego.start_s_m = pos
+
+
+def make_vc_driver(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain], controller: str, step_s: float, seed: int = 42,
+                   channel: str | Path | None = None, cbf_config: str | None = None, guard: str | Path | None = None) -> VCDriver:
+    """Build the vc driver for a timetable's convoys (errors name the timetable or the controller)."""
+    parse_controller(controller)
+    convoys = convoys_from_timetable(tt, tt_path, trains)
+    return VCDriver(convoys, controller, step_s, seed, load_channel(channel), cbf_config, guard=load_guard(guard))
