@@ -7,7 +7,8 @@ same metres SUMO uses (edge lengths are written explicitly into the network).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from bisect import bisect_right
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -30,6 +31,19 @@ class RouteProfile:
     km_to: np.ndarray
     point_limits: list[tuple[float, float]]
     """(position m, speed m/s) of turnouts: held until the whole train has passed."""
+    _starts: list[float] = field(default_factory=list, repr=False, compare=False)
+    _speeds: list[float] = field(default_factory=list, repr=False, compare=False)
+    _grads: list[float] = field(default_factory=list, repr=False, compare=False)
+    _tfs: list[float] = field(default_factory=list, repr=False, compare=False)
+    _ends: list[float] = field(default_factory=list, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # plain lists for fast scalar look-ups (bisect) in the per-step loops
+        self._starts = [float(x) for x in self.starts_m]
+        self._speeds = [float(x) for x in self.speeds_ms]
+        self._grads = [float(x) for x in self.gradients]
+        self._tfs = [float(x) for x in self.tunnel_factors]
+        self._ends = [float(a + b) for a, b in zip(self.starts_m, self.lengths_m)]
 
     @property
     def length_m(self) -> float:
@@ -62,8 +76,8 @@ class RouteProfile:
     # ---------------------------------------------------------------------------------------
     def index_at(self, s: float) -> int:
         """Index of the edge containing position s (the later edge at a boundary)."""
-        i = int(np.searchsorted(self.starts_m, s, side="right")) - 1
-        return min(max(i, 0), len(self.edges) - 1)
+        i = bisect_right(self._starts, s) - 1
+        return min(max(i, 0), len(self._starts) - 1)
 
     def km_at(self, s: float) -> tuple[str, float]:
         """(section, chainage km) of route position s."""
@@ -89,13 +103,13 @@ class RouteProfile:
 
     def speed_limit_at(self, s: float) -> float:
         """Speed limit at the train front, m/s."""
-        return float(self.speeds_ms[self.index_at(s)])
+        return self._speeds[self.index_at(s)]
 
     def speed_limit_train(self, s: float, length_m: float) -> float:
         """Lowest limit over the whole train [s − L, s] including turnouts (SUMO's rule), m/s."""
         i0 = self.index_at(max(s - length_m, 0.0))
         i1 = self.index_at(s)
-        v = float(self.speeds_ms[i0 : i1 + 1].min())
+        v = min(self._speeds[i0 : i1 + 1])
         for ps, pv in self.point_limits:
             if s - length_m - 1e-9 <= ps <= s + 1e-9 and pv < v:
                 v = pv
@@ -104,23 +118,33 @@ class RouteProfile:
     def mean_gradient(self, s: float, length_m: float) -> float:
         """Equivalent gradient averaged over the train [s − L, s] (SUMO's getSlope)."""
         lo = s - length_m
+        g = self._grads
         if length_m <= 0:
-            return float(self.gradients[self.index_at(s)])
+            return g[self.index_at(s)]
+        i0, i1 = self.index_at(max(lo, 0.0)), self.index_at(s)
+        if i0 == i1 and lo >= 0:
+            return g[i1]
         total = 0.0
         if lo < 0:  # train tail before the route start: extend the first edge's gradient
-            total += self.gradients[0] * (-lo)
+            total += g[0] * (-lo)
             lo = 0.0
-        i0, i1 = self.index_at(lo), self.index_at(s)
+        starts, ends = self._starts, self._ends
         for i in range(i0, i1 + 1):
-            a = max(lo, self.starts_m[i])
-            b = min(s, self.starts_m[i] + self.lengths_m[i])
+            a = lo if lo > starts[i] else starts[i]
+            b = s if s < ends[i] else ends[i]
             if b > a:
-                total += self.gradients[i] * (b - a)
+                total += g[i] * (b - a)
         return total / length_m
+
+    def gradient_range(self, s0: float, s1: float) -> tuple[float, float]:
+        """(lowest, highest) equivalent gradient of the edges touching [s0, s1]."""
+        i0, i1 = self.index_at(max(s0, 0.0)), self.index_at(max(s1, s0))
+        seg = self._grads[i0 : i1 + 1]
+        return min(seg), max(seg)
 
     def tunnel_factor_at(self, s: float) -> float:
         """Tunnel factor at the train front (SUMO switches the vType when the front passes a portal)."""
-        return float(self.tunnel_factors[self.index_at(s)])
+        return self._tfs[self.index_at(s)]
 
     def restriction_targets(self) -> list[tuple[float, float]]:
         """(position, speed) of every place where the limit drops, sorted by position."""

@@ -38,6 +38,8 @@ from vcsumo.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
 from vcsumo.timetable import PlannedTrain, routes_xml
 
 REGIMES = ("fbs", "mb", "vc")
+GAP_TOLERANCE_M = 0.01
+"""Numerical tolerance of the gap-violation test, m (a guard holding exactly d_min is not a violation)."""
 
 
 @dataclass(frozen=True)
@@ -102,10 +104,10 @@ class Scenario:
     end_time_s: float | None = None
     lookahead_m: float = 30000.0
     driver: Driver | None = None
-    on_sight_speed_mps: float = 30.0 / 3.6
-    """Below this follower speed, FBS/MB allow on-sight movement (SUMO's MB margin applies only above
-    30 km/h): gaps there are reported but not counted as violations.  Trains driven by a vcsumo
-    driver are always held to ``min_safe_gap_m``."""
+    on_sight_speed_mps: float = 30.0 / 3.6 + 0.5
+    """Below this follower speed, FBS/MB allow on-sight movement (SUMO's MB margin applies only from
+    30 km/h; trains hover at that boundary, hence +0.5 m/s): gaps there are reported but not counted
+    as violations.  Trains driven by a vcsumo driver are always held to their ``safe_gap_m``."""
     full_outputs: bool = True
     """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
     trace_speeds: bool = False
@@ -179,6 +181,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     collisions: list[tuple[float, str, str]] = []
     teleports: list[tuple[float, str]] = []
     traces: dict[str, tuple[list[float], list[float]]] = {}
+    violation_rows: list[tuple] = []
     next_record = begin
     dt = scn.step_length_s
     with SumoBackend(args, error_log=out / "sumo_errors.log") as sim:
@@ -230,12 +233,14 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 threshold = scn.driver.safe_gap_m(vid) if (tr.controlled and scn.driver is not None) else scn.min_safe_gap_m
                 if threshold != tr.threshold:
                     tr.threshold, tr.armed = threshold, False
-                if gap >= threshold:
+                if gap >= threshold - GAP_TOLERANCE_M:
                     tr.armed = True
                 elif counts:
                     tr.violation_time += dt
                     if tr.armed:  # a violation: the gap fell below the safe gap from above
                         tr.violations += 1
+                        sec, km_v = prof.km_at(tr.s)
+                        violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), ob.speed_mps, gap, threshold, tr.controlled))
                     tr.armed = False
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))
@@ -281,6 +286,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     wall = time.perf_counter() - t_wall
     result = _collect(scn, out, state, traj_rows, pass_rows, collisions, teleports, sim_end, wall)
     result.speed_traces = traces
+    pd.DataFrame(violation_rows, columns=["time_s", "train", "leader", "section", "km", "speed_mps", "gap_m", "safe_gap_m", "driven_by_vcsumo"]).to_csv(out / "violations.csv", index=False)
+    pd.DataFrame(collisions, columns=["time_s", "collider", "victim"]).to_csv(out / "collisions.csv", index=False)
     return result
 
 

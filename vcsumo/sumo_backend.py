@@ -8,9 +8,10 @@ Speed modes (``setSpeedMode`` bit masks, SUMO docs "TraCI/Change Vehicle State")
 
 * :data:`SPEED_MODE_DEFAULT` (31) — SUMO drives: safe speed (signals, moving-block braking
   distance), traction and braking limits, right of way, red lights.
-* :data:`SPEED_MODE_VC_FOLLOWER` (30) — a virtually coupled follower driven by vcsumo: SUMO's
-  safe-speed (absolute braking distance) check is OFF, so the controller alone keeps the gap;
-  traction and braking limits and red signals are still enforced by SUMO.
+* :data:`SPEED_MODE_VC_FOLLOWER` (26) — a virtually coupled follower driven by vcsumo: SUMO's
+  safe-speed (absolute braking distance) check and its braking cap (service ``decel``) are OFF, so
+  the follower can apply its emergency brake; vcsumo bounds the deceleration itself with the train
+  model (eq. 1b at the emergency braking force), SUMO still enforces traction and red signals.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from vcsumo.errors import SumoError
 from vcsumo.sumo_paths import sumo_binary, sumo_home
 
 SPEED_MODE_DEFAULT = 31
-SPEED_MODE_VC_FOLLOWER = 30
+SPEED_MODE_VC_FOLLOWER = 26
 INVALID_DISTANCE = -1073741824.0
 
 
@@ -172,6 +173,7 @@ def sumo_args(
         "-n", str(net_file), "-r", str(route_file), "-a", ",".join(str(a) for a in additional),
         "--step-length", f"{step_length}", "--end", f"{end_time}", "--seed", str(seed),
         "--time-to-teleport", "-1", "--collision.action", "warn", "--collision.check-junctions", "true",
+        "--collision.mingap-factor", "0",
         "--no-step-log", "true", "--duration-log.disable", "true", "--default.speeddev", "0",
         "--message-log", str(out / "sumo_messages.log"),
         "--tripinfo-output", str(out / "tripinfo.xml"), "--stop-output", str(out / "stops.xml"),

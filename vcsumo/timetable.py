@@ -90,9 +90,11 @@ class PlannedStop:
     platform: str
     station: str
     s_m: float
+    """Route position of the front when stopped (the platform's departure end), m."""
     dwell_s: float
     arrival_s: float | None
     departure_s: float | None
+    platform_length_m: float = 0.0
 
 
 @dataclass
@@ -209,12 +211,12 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             dwell = call.dwell_s if call.dwell_s is not None else st.dwell_s
             if arr is not None and dep is not None and dep < arr:
                 raise InputError(path, f"{fs}.departure", "scheduled departure is before the scheduled arrival")
-            planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep))
+            planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep, plat.end_pos_m - plat.start_pos_m))
         end_s = float(prof.starts_m[-1] + end_pos)
         final = None
         if svc.destination not in ("start", "end") and not svc.destination.startswith("branch:"):
             plat = next(p for p in topo.platforms_of(svc.destination) if p.edge == route[-1])
-            final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None)
+            final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.end_pos_m - plat.start_pos_m)
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
         times = [dep0] + [x for s in planned_stops for x in (s.arrival_s, s.departure_s) if x is not None] + ([arr_sched] if arr_sched is not None else [])
@@ -244,7 +246,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                 id=tid, service=svc.id, stock=stock, edges=route, profile=prof, depart_s=dep0 + off,
                 depart_pos_m=start_pos, depart_speed_mps=0.0, direction=direction,
                 stops=[PlannedStop(s.platform, s.station, s.s_m, s.dwell_s, None if s.arrival_s is None else s.arrival_s + off,
-                                   None if s.departure_s is None else s.departure_s + off) for s in planned_stops],
+                                   None if s.departure_s is None else s.departure_s + off, s.platform_length_m) for s in planned_stops],
                 final_stop=final, end_pos_m=end_pos, scheduled_arrival_s=None if arr_sched is None else arr_sched + off,
                 start_s_m=start_pos,
             ))

@@ -13,14 +13,16 @@
    controller) and passes it through the CBF supervisor when the controller name starts with
    ``cbf-``;
 4. turns the force into the speed the train reaches after one step under eq. 1b (the shared train
-   model), caps it with the relative-braking guard (:func:`guard_speed`) — the last filter stage,
-   applied to every controller — and the loop sends it to SUMO with speed mode 30 (traction and
-   braking limits and red signals still enforced by SUMO, SUMO's own braking-distance rule off).
+   model, the force bounded below by the emergency brake), caps it with the relative-braking guard
+   (:func:`guard_speed`) — the last filter stage, applied to every controller — and the loop sends
+   it to SUMO with speed mode 26 (traction limit and red signals still enforced by SUMO; SUMO's
+   own braking-distance rule and service-brake cap off).
 
 The guard is the nominal relative-braking-distance condition (Felez et al. eq. 12m, Wu et al. eq.
-3.1): after one step the follower must be able to stop at its service deceleration at least
-d_min behind the point where the predecessor would stop under emergency braking started when its
-latest information was taken (sensed: now; communicated: at the message's time stamp).  The CBF
+3.1): after one step the follower must be able to stop at its emergency deceleration (configurable:
+``controllers/guard.yaml``) at least d_min behind the point where the predecessor would stop under
+emergency braking started when its latest information was taken (sensed: now; communicated: at
+the message's time stamp).  The CBF
 supervisor (``cbf-`` controllers) is the robust version of the same idea, with the parameter
 uncertainty of Terlizzi et al. eq. 7; the guard only catches what a nominal controller would let
 through.  Its interventions are counted.
@@ -61,6 +63,7 @@ from vcsumo.config import StrictModel, load_model
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import project_root
+from vcsumo.units import G
 from vcsumo.running_time import unhindered_run
 from vcsumo.simulation import Snapshot
 from vcsumo.timetable import PlannedTrain, TimetableFile
@@ -98,7 +101,7 @@ class GuardConfig(StrictModel):
     """Decelerations of the relative-braking guard (the last filter stage of every VC controller)."""
 
     leader_decel: str = Field(default="emergency", pattern="^(emergency|service)$", description="Predecessor's worst case: its emergency or service deceleration")
-    follower_decel: str = Field(default="service", pattern="^(emergency|service)$", description="Follower's guaranteed deceleration (SUMO applies at most service decel + resistance)")
+    follower_decel: str = Field(default="emergency", pattern="^(emergency|service)$", description="Deceleration the follower's guard may rely on (its own emergency or service brake)")
 
 
 def load_guard(spec: str | Path | None) -> GuardConfig:
@@ -220,14 +223,28 @@ def guard_speed(s_f_m: float, b_f_mps2: float, dt_s: float, s_l_m: float, v_l_mp
     Worst case for the predecessor: braking at ``a_l`` from the state (s_l, v_l) it was last known
     in — sensed now or communicated earlier; the stopping point s_l + v_l²/(2·a_l) is the same
     whenever after that moment the braking started, so old information is still a valid bound.
-    The follower keeps its speed for one step (Δt) and then brakes at ``b_f``:
-    v·Δt + v²/(2·b_f) ≤ s_l + v_l²/(2·a_l) − L_l − d_min − s_f.
+    The follower runs one step (Δt) at the commanded speed v and then brakes at ``b_f`` with
+    SUMO's semi-implicit Euler update, which covers v²/(2·b_f) + ½·v·Δt:
+    1.5·v·Δt + v²/(2·b_f) ≤ s_l + v_l²/(2·a_l) − L_l − d_min − s_f.
     """
     stop_l = s_l_m + v_l_mps * v_l_mps / (2.0 * a_l_mps2)
     room = stop_l - leader_length_m - d_min_m - s_f_m
     if room <= 0.0:
         return 0.0
-    return b_f_mps2 * (-dt_s + math.sqrt(dt_s * dt_s + 2.0 * room / b_f_mps2))
+    k = 1.5 * dt_s
+    return b_f_mps2 * (-k + math.sqrt(k * k + 2.0 * room / b_f_mps2))
+
+
+def guaranteed_decel(p, v_mps: float, decel_mps2: float, grad_low: float) -> float:
+    """Deceleration a train certainly reaches braking with force M·decel (eq. 1b): resistance at
+    least A, gradient at worst the steepest downhill ahead, m/s²."""
+    return (p.mass_kg * decel_mps2 + p.davis_a_n + p.mass_kg * G * min(grad_low, 0.0)) / (p.mass_kg * p.rotating_mass_factor)
+
+
+def strongest_decel(p, v_mps: float, decel_mps2: float, grad_high: float, tunnel_factor: float = 1.0) -> float:
+    """Hardest deceleration a train may show braking with force M·decel at speed v (eq. 1b):
+    its resistance at v and the steepest uphill ahead help it, m/s²."""
+    return (p.mass_kg * decel_mps2 + float(running_resistance(p, v_mps, tunnel_factor)) + p.mass_kg * G * max(grad_high, 0.0)) / p.mass_kg
 
 
 def leader_plan(t: PlannedTrain, s_m: float, v_mps: float, now_s: float, horizon_s: float, dt: float, stops_after: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -270,6 +287,7 @@ class _Follower:
     coupled_since_s: float = math.nan
     released_at_s: float = math.nan
     stops_m: list[float] = field(default_factory=list)
+    platforms_m: list[float] = field(default_factory=list)
     next_stop: int = 0
     stop_handovers: int = 0
     at_stop: bool = False
@@ -279,11 +297,15 @@ class VCDriver:
     """The vc-regime driver: convoys, channel, controllers, CBF filter (see module doc)."""
 
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
-                 cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None):
+                 cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
+                 plan_step_s: float = 0.5):
         self.name, self.params_spec = parse_controller(controller)
         self.step_s = step_s
         self.channel = Channel((channel or ChannelConfig(model="ideal", period_s=step_s)).model_copy(update={"seed": seed}))
         self.plan_horizon_s = plan_horizon_s
+        self.plan_step_s = plan_step_s
+        # predicted trajectories are sent only to controllers that use them (SH predictor, RLP)
+        self.send_plans = self.name != "cbc"
         self.guard = guard or GuardConfig()
         self.trains: dict[str, PlannedTrain] = {}
         self.convoy_of: dict[str, tuple[str, ...]] = {}
@@ -306,11 +328,14 @@ class VCDriver:
                         if f is not None:
                             frames[other.id] = f
                 stops = [x.s_m for x in ego.stops]
+                plats = [x.platform_length_m for x in ego.stops]
                 if ego.final_stop is not None:
                     stops.append(ego.final_stop.s_m)
+                    plats.append(ego.final_stop.platform_length_m)
                 elif ego.end_pos_m is not None and ego.stop_at_end:
                     stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
-                self.followers[ego.id] = _Follower(ego, pred, ids, nominal, sup, d_min, frames, stops_m=stops)
+                    plats.append(0.0)
+                self.followers[ego.id] = _Follower(ego, pred, ids, nominal, sup, d_min, frames, stops_m=stops, platforms_m=plats)
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         arrange_convoy_departures(convoys, {fid: f.d_min + 2.0 for fid, f in self.followers.items()})
 
@@ -324,8 +349,9 @@ class VCDriver:
             f = self.followers.get(tid)
             times = pos = spd = frc = None
             if f is None:  # convoy leader: its unhindered profile from its state
-                rest = [x for x in plan.stops if x.s_m > st.s_m + 1.0]
-                times, pos, spd, frc = leader_plan(plan, st.s_m, st.speed_mps, t, self.plan_horizon_s, self.step_s, rest)
+                if self.send_plans:
+                    rest = [x for x in plan.stops if x.s_m > st.s_m + 1.0]
+                    times, pos, spd, frc = leader_plan(plan, st.s_m, st.speed_mps, t, self.plan_horizon_s, self.plan_step_s, rest)
             elif f.last_cmd is not None and f.last_cmd.plan_times_s is not None:
                 times, pos, spd, frc = f.last_cmd.plan_times_s, f.last_cmd.plan_positions_m, f.last_cmd.plan_speeds_mps, f.last_cmd.plan_forces_n
             force = f.last_cmd.force_n if f is not None and f.last_cmd is not None else (float(frc[0]) if frc is not None else 0.0)
@@ -366,13 +392,23 @@ class VCDriver:
             while f.next_stop < len(f.stops_m) and st.s_m > f.stops_m[f.next_stop] + 1.0:
                 f.next_stop += 1
                 f.at_stop = False
+            stop_target = None  # where SUMO will stop this follower, when its stop is near
             if coupled and f.next_stop < len(f.stops_m):
                 b = f.plan.stock.service_brake_decel_mps2
                 v = st.speed_mps
-                to_stop = f.stops_m[f.next_stop] - st.s_m
-                gap = (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m
-                mb_kept = gap >= v * v / (2 * b) + 0.5 * self.step_s * v + 50.0
-                if f.at_stop or (to_stop <= v * v / (2 * b) + 150.0 and (v < 30.0 / 3.6 or mb_kept)):
+                s_pred = pst.s_m + fr.offset_m
+                s_pred_rear = s_pred - f.pred.stock.length_m
+                # SUMO stops the follower at its platform end, or behind a predecessor standing in the platform
+                s_stop = f.stops_m[f.next_stop]
+                in_platform = s_stop - f.platforms_m[f.next_stop] - 1.0 <= s_pred <= s_stop + 1.0
+                target = min(s_stop, s_pred_rear - 5.0) if in_platform else s_stop
+                to_stop = target - st.s_m
+                sumo_brake = v * v / (2 * b) + 0.5 * self.step_s * v  # SUMO's own braking distance
+                gap = s_pred_rear - st.s_m
+                mb_kept = gap >= sumo_brake + 50.0
+                if to_stop <= sumo_brake + 150.0:
+                    stop_target = target
+                if f.at_stop or (stop_target is not None and (v < 30.0 / 3.6 or mb_kept) and to_stop >= sumo_brake + 1.0):
                     if not f.at_stop:
                         f.stop_handovers += 1
                     f.at_stop = True
@@ -414,20 +450,37 @@ class VCDriver:
             force = float(cmd.force_n)
             grad = f.plan.profile.mean_gradient(st.s_m, p.length_m)
             tf = f.plan.profile.tunnel_factor_at(st.s_m)
-            v_next = max(0.0, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, force, grad, tf)))
+            # the follower brakes at most with its emergency braking force (SUMO's cap is off for it)
+            f_min = -p.mass_kg * p.emergency_brake_decel_mps2
+            v_floor = max(0.0, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, f_min, grad, tf)))
+            v_next = max(v_floor, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, force, grad, tf)))
             # last filter stage: the relative-braking guard, on the best information on board
             if sensed_gap is not None and sensed_speed is not None:
                 s_l, v_l = st.s_m + sensed_gap + f.pred.stock.length_m, sensed_speed
             else:
                 m = received.get(f.pred.id)
                 s_l, v_l = (m.state.position_m, m.state.speed_mps) if m is not None else (st.s_m, 0.0)
-            b_f = p.emergency_brake_decel_mps2 if self.guard.follower_decel == "emergency" else p.service_brake_decel_mps2
             ps = f.pred.stock
-            a_l = ps.emergency_brake_decel_mps2 if self.guard.leader_decel == "emergency" else ps.service_brake_decel_mps2
+            pp = ps.params()
+            # approaching its own stop the follower keeps to service braking, so that SUMO (which
+            # serves the stop) can always take over; the stop target is an obstacle too
+            near_stop = stop_target is not None
+            dec_f = p.emergency_brake_decel_mps2 if (self.guard.follower_decel == "emergency" and not near_stop) else p.service_brake_decel_mps2
+            dec_l = ps.emergency_brake_decel_mps2 if self.guard.leader_decel == "emergency" else ps.service_brake_decel_mps2
+            prof = f.plan.profile
+            v = st.speed_mps
+            g_low, _ = prof.gradient_range(st.s_m - p.length_m, st.s_m + v * v / (2 * dec_f) + 2 * v * self.step_s + 10.0)
+            b_f = guaranteed_decel(p, v, dec_f, g_low)
+            _, g_high = prof.gradient_range(s_l - pp.length_m, s_l + v_l * v_l / (2 * dec_l) + 10.0)
+            a_l = strongest_decel(pp, v_l, dec_l, g_high, 1.5)
             v_guard = guard_speed(st.s_m, b_f, self.step_s, s_l, v_l, ps.length_m, a_l, f.d_min)
+            if near_stop:
+                b_serv = guaranteed_decel(p, v, p.service_brake_decel_mps2, g_low)
+                v_guard = min(v_guard, guard_speed(st.s_m, b_serv, self.step_s, stop_target, 0.0, 0.0, 1.0, 1.0))
+            v_nominal = v_next
             if v_next > v_guard + 1e-9:
                 f.guard_interventions += 1
-                v_next = v_guard
+                v_next = max(v_guard, v_floor)
             commands[fid] = v_next
             if record:
                 gap_comm = None
@@ -440,6 +493,7 @@ class VCDriver:
                     "sensed_gap_m": sensed_gap, "communicated_gap_m": gap_comm, "force_n": cmd.force_n, "mode": cmd.mode,
                     "emergency": cmd.emergency, "infeasible": cmd.infeasible,
                     "barrier_true_m": cmd.info.get("cbf_true_barrier_m"), "barrier_robust_m": cmd.info.get("cbf_robust_barrier_m"),
+                    "speed_nominal_mps": v_nominal, "speed_guard_mps": v_guard, "speed_command_mps": v_next,
                 })
         return commands
 
