@@ -78,7 +78,7 @@ def main() -> None:
     wall_one = time.perf_counter() - t0
     row = df.iloc[0]
     print(f"felez2019 one strategy (SH, 2 trains, {row['leader_stop_time_s']:.0f} s simulated): wall time {wall_one:.2f} s "
-          f"(distance {row['distance_m']:.1f} m, paper {row['paper_distance_m']:.1f} m)")
+          f"(distance {row['stop_distance_m']:.1f} m, paper {row['paper_stop_distance_m']:.1f} m)")
 
 
 if __name__ == "__main__":
