@@ -64,6 +64,7 @@ services:
         ("destination: FISMN", "destination: BOAV", "services[0].destination", "equals origin"),
         ('destination: FISMN\n    departure: "07:00"\n    stops: [{station: FIRI', 'destination: FIRI\n    departure: "07:00"\n    stops: [{station: FISMN', "services[0].stops[0].station", "not on the route"),
         ('departure: "07:00"', 'departure: "07:00"\n    arrival: "07:10"', "services[0].arrival", "infeasible"),
+        ("stops: [{station: FIRI, dwell_s: 30}]", "stops: [{station: FIRI, dwell_s: 30, departure: '07:30'}]\n    arrival: '07:31'", "services[0].arrival", "from its previous departure"),
         ('departure: "07:00"', 'departure: "7h"', "services[0].departure", "not a time"),
         ("line: firenze_bologna", "line: hcmc_line1", "line", "not 'firenze_bologna'"),
         ("    stops:", "    colour: red\n    stops:", "services[0].colour", "unknown key"),

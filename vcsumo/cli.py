@@ -256,6 +256,15 @@ def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
     out_console.print(f"wrote {out}")
 
 
+def _register_batch() -> None:
+    from vcsumo.cli_batch import batch_cmd
+
+    cli.add_command(batch_cmd)
+
+
+_register_batch()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     try:

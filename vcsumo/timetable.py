@@ -228,15 +228,23 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                 run = unhindered_run(stock.params(), prof, dt=dt, s0=start_pos, stops=[Stop(s.s_m, s.dwell_s) for s in planned_stops], end_s=end_s)
                 runtime_cache[key] = run
             run = runtime_cache[key]
+            # every leg: from the previous scheduled departure (or the origin) to a scheduled arrival
+            t_arr = [float(time_at(run, s.s_m - 0.5)[0]) for s in planned_stops]
+            prev_dep_sched, prev_dep_run = dep0, 0.0
             for j, s in enumerate(planned_stops):
                 if s.arrival_s is not None:
-                    t_min = float(time_at(run, s.s_m - 0.5)[0])
-                    if dep0 + t_min > s.arrival_s + 1.0:
-                        raise InputError(path, f"{f}.stops[{j}].arrival", f"infeasible: scheduled {format_clock(s.arrival_s)} but the train needs {t_min:.0f} s from departure (earliest {format_clock(dep0 + t_min)})")
+                    need = t_arr[j] - prev_dep_run
+                    if prev_dep_sched + need > s.arrival_s + 1.0:
+                        raise InputError(path, f"{f}.stops[{j}].arrival", f"infeasible: scheduled {format_clock(s.arrival_s)} but the train needs {need:.0f} s from its previous departure (earliest {format_clock(prev_dep_sched + need)})")
+                dep_sched = s.departure_s if s.departure_s is not None else (s.arrival_s + s.dwell_s if s.arrival_s is not None else None)
+                if dep_sched is not None:
+                    prev_dep_sched, prev_dep_run = dep_sched, t_arr[j] + s.dwell_s
+                else:
+                    prev_dep_sched, prev_dep_run = prev_dep_sched + (t_arr[j] + s.dwell_s - prev_dep_run), t_arr[j] + s.dwell_s
             if arr_sched is not None:
-                t_min = float(run["time_s"].iloc[-1])
-                if dep0 + t_min > arr_sched + 1.0:
-                    raise InputError(path, f"{f}.arrival", f"infeasible: scheduled {format_clock(arr_sched)} but the train needs {t_min:.0f} s (earliest {format_clock(dep0 + t_min)})")
+                need = float(run["time_s"].iloc[-1]) - prev_dep_run
+                if prev_dep_sched + need > arr_sched + 1.0:
+                    raise InputError(path, f"{f}.arrival", f"infeasible: scheduled {format_clock(arr_sched)} but the train needs {need:.0f} s from its previous departure (earliest {format_clock(prev_dep_sched + need)})")
         count = svc.repeat.count if svc.repeat else 1
         every = svc.repeat.every_s if svc.repeat else 0.0
         for k in range(count):

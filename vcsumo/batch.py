@@ -1,0 +1,750 @@
+"""Batch timetable experiments: timetables × regimes × controllers × seeds with primary delays.
+
+Every run plans a timetable, injects seeded primary delays (:mod:`vcsumo.delays`), runs it in
+SUMO under one regime (and, for ``vc``, one controller) and reduces it to one row of
+``batch.csv``; the trains of every run go to ``batch_trains.csv``.  Runs execute in parallel
+processes (one SUMO per process: libsumo is a per-process singleton) or on a Dask cluster.
+
+Results folder (``--out``)::
+
+    batch.csv            one row per run (appended as each run finishes)
+    batch_trains.csv     one row per train and run (written before the run's row)
+    uic406.csv           UIC 406 capacity consumption per timetable, regime and line section
+    runs/<run>/          each run's own results folder (summary.csv, stop_events.csv, delays.csv,
+                         trains.csv, SUMO outputs, meta.json: inputs, versions, seed, wall time)
+    report/              batch_summary.csv, batch_delays.png, batch_punctuality.png, meta.json
+    workers.log          what SUMO printed in the local worker processes
+
+Resuming: a run is identified by its key, the hash of (timetable file SHA-256, regime,
+controller, seed, delay-configuration hash, line file SHA-256, step length, block length).  A
+run whose key is already in ``batch.csv`` is not run again, so re-running the same command
+continues an interrupted batch, and adding seeds or timetables only runs the new combinations.
+``batch.csv`` is appended one whole line at a time (flushed to disk); a line cut off by an
+interruption is discarded on the next start, and train rows without their run row are dropped.
+Failed runs count as finished unless ``retry_failed``.
+
+Metrics of a run (``BATCH_COLUMNS``; times in s):
+
+* arrival delay of a train = actual arrival at its destination − its *reference arrival*: the
+  scheduled arrival, or, for a train without one, its scheduled departure + its unhindered
+  running time (:func:`vcsumo.uic406.reference_arrivals`: unhindered run, scheduled stops
+  honoured);
+* ``punctuality_3min_share`` / ``punctuality_5min_share``: share of the run's trains that arrived
+  with an arrival delay ≤ 180 s / 300 s (trains that never arrived count as late);
+* ``mean_arrival_delay_s``, ``max_arrival_delay_s``: over the trains that arrived (signed: early
+  arrivals are negative);
+* ``primary_delay_s``: sum of the injected delays; ``knock_on_delay_s``: sum over arrived trains
+  of max(0, arrival delay − the primary delay the train carried), the secondary delay;
+* ``capacity_consumption_pct``: UIC 406 consumption of the timetable (no delays) under the run's
+  regime, maximum over the line sections (:mod:`vcsumo.uic406`; ``..._cyclic_pct`` with the cycle
+  closed);
+* ``min_gap_m``, ``gap_violations``, ``collisions``, ``emergency_brakes``: from the simulation.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import multiprocessing
+import os
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import pandas as pd
+
+from vcsumo.delays import DelayConfig, config_digest, inject_delays
+from vcsumo.errors import InputError, VcsumoError
+from vcsumo.line import Line, load_line
+from vcsumo.results import ResultsFolder, file_digest
+
+BATCH_COLUMNS = [
+    "timetable", "regime", "controller", "seed", "status", "error", "trains", "trains_arrived",
+    "punctuality_3min_share", "punctuality_5min_share", "mean_arrival_delay_s", "max_arrival_delay_s",
+    "primary_delay_s", "knock_on_delay_s", "capacity_consumption_pct", "capacity_consumption_cyclic_pct",
+    "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "wall_time_s",
+    "line", "timetable_sha256", "delay_config_sha256", "run_key", "run_dir",
+]
+TRAIN_COLUMNS = [
+    "run_key", "timetable", "regime", "controller", "seed", "train", "service", "direction",
+    "scheduled_departure_s", "departure_s", "reference_arrival_s", "arrival_s", "arrived", "arrival_delay_s",
+    "origin_delay_s", "dwell_extension_s", "primary_delay_s", "knock_on_delay_s",
+]
+UIC_COLUMNS = ["timetable", "timetable_sha256", "regime", "step_length_s", "window_s", "direction", "section", "from_km", "to_km",
+               "length_m", "blocks", "trains", "scheduled_span_s", "occupation_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct"]
+PUNCTUALITY_THRESHOLDS_S = (180.0, 300.0)
+REGIMES = ("fbs", "mb", "vc")
+DEFAULT_CONTROLLER = "cbf-cbc"
+
+_SUMO_LOCK = threading.Lock()
+"""libsumo is one simulation per process: runs in threads of one process (a Dask worker with
+several threads) take turns."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Runs
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a batch (picklable: sent to worker processes and Dask workers)."""
+
+    line_path: str
+    block_length_m: float | None
+    timetable_path: str
+    timetable: str
+    timetable_sha256: str
+    regime: str
+    controller: str
+    """VC controller; '' for fbs and mb."""
+    seed: int
+    delays: dict
+    """The DelayConfig as a plain dict."""
+    delay_config_sha256: str
+    step_length_s: float
+    run_dir: str
+    key: str
+    line: str
+    command: str = ""
+
+    @property
+    def label(self) -> str:
+        ctrl = f"/{self.controller}" if self.controller else ""
+        return f"{self.timetable} {self.regime}{ctrl} seed {self.seed}"
+
+
+def run_key(timetable_sha256: str, regime: str, controller: str, seed: int, delay_sha256: str, line_sha256: str,
+            step_length_s: float, block_length_m: float | None) -> str:
+    """The resume key of a run (16 hex digits)."""
+    text = f"{timetable_sha256}|{regime}|{controller}|{int(seed)}|{delay_sha256}|{line_sha256}|{step_length_s:g}|{block_length_m}"
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _one_line(msg: str) -> str:
+    return " ".join(str(msg).split())
+
+
+def _error_message(exc: BaseException) -> str:
+    if isinstance(exc, VcsumoError):
+        return _one_line(str(exc))
+    return _one_line(f"{type(exc).__name__}: {exc}")
+
+
+def _base_row(spec: RunSpec) -> dict:
+    row = {c: None for c in BATCH_COLUMNS}
+    row.update(timetable=spec.timetable, regime=spec.regime, controller=spec.controller, seed=spec.seed, line=spec.line,
+               timetable_sha256=spec.timetable_sha256, delay_config_sha256=spec.delay_config_sha256, run_key=spec.key,
+               run_dir=os.path.relpath(spec.run_dir, Path(spec.run_dir).parent.parent))
+    return row
+
+
+def failed_outcome(spec: RunSpec, error: str, wall_time_s: float = 0.0) -> dict:
+    """The outcome of a run that did not complete."""
+    row = _base_row(spec)
+    row.update(status="failed", error=_one_line(error), wall_time_s=round(wall_time_s, 3))
+    return {"row": row, "trains": []}
+
+
+def run_one(spec: RunSpec) -> dict:
+    """Run one batch run; never raises: a failure is an outcome with status 'failed'.
+
+    Returns ``{"row": <batch.csv row>, "trains": [<batch_trains.csv rows>]}``.
+    """
+    t0 = time.perf_counter()
+    try:
+        with _SUMO_LOCK:
+            out = _run(spec)
+        out["row"]["wall_time_s"] = round(time.perf_counter() - t0, 3)
+        return out
+    except BaseException as exc:  # noqa: BLE001 - a batch never stops for one run
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        return failed_outcome(spec, _error_message(exc), time.perf_counter() - t0)
+
+
+def _run(spec: RunSpec) -> dict:
+    from vcsumo.network import build_network
+    from vcsumo.simulation import Scenario, simulate
+    from vcsumo.timetable import load_timetable, plan_trains
+    from vcsumo.uic406 import reference_arrivals
+
+    line = load_line(spec.line_path)
+    tt_path = Path(spec.timetable_path)
+    if not tt_path.is_file():
+        raise InputError(tt_path, None, "timetable file not found")
+    if file_digest(tt_path) != spec.timetable_sha256:
+        raise InputError(tt_path, None, "timetable file changed since the batch started")
+    tt, tt_path = load_timetable(tt_path, line)
+    net = build_network(line, spec.block_length_m)
+    planned = plan_trains(tt, tt_path, line, net.topology, dt=spec.step_length_s)
+    cfg = DelayConfig.model_validate(spec.delays)
+    trains, delays = inject_delays(planned, cfg, spec.seed, spec.timetable_sha256)
+    driver = None
+    if spec.regime == "vc":
+        from vcsumo.vc import make_vc_driver
+
+        driver = make_vc_driver(tt, tt_path, trains, spec.controller or DEFAULT_CONTROLLER, spec.step_length_s, spec.seed)
+    ref = reference_arrivals(planned, spec.step_length_s)
+    params = {"regime": spec.regime, "controller": spec.controller or None, "step_length_s": spec.step_length_s,
+              "block_length_m": spec.block_length_m, "delays": spec.delays, "delay_config_sha256": spec.delay_config_sha256,
+              "run_key": spec.key, "batch_command": spec.command}
+    with ResultsFolder(Path(spec.run_dir), inputs={"line": line.path, "timetable": tt_path}, seed=spec.seed, params=params, overwrite=True) as rf:
+        scn = Scenario(line, net, trains, spec.regime, step_length_s=spec.step_length_s, seed=spec.seed, driver=driver,
+                       min_safe_gap_m=driver.min_safe_gap_m if driver is not None else 50.0, full_outputs=False)
+        res = simulate(scn, rf.path)
+        if driver is not None:
+            driver.write_report(rf.path)
+            res.summary.update(driver.summary())
+            (rf.path / "summary.json").write_text(json.dumps(res.summary, indent=2, default=str))
+        pd.DataFrame([{"train": d.train, "origin_delay_s": d.origin_s, "dwell_extensions_s": " ".join(f"{x:g}" for x in d.dwell_s),
+                       "primary_delay_s": round(d.total_s, 1)} for d in delays.values()]).to_csv(rf.path / "delays.csv", index=False)
+        row, train_rows = _metrics(spec, planned, delays, ref, res)
+        pd.DataFrame(train_rows, columns=TRAIN_COLUMNS).to_csv(rf.path / "trains.csv", index=False)
+    return {"row": row, "trains": train_rows}
+
+
+def _metrics(spec: RunSpec, planned, delays, ref: dict[str, float], res) -> tuple[dict, list[dict]]:
+    sim = res.trains.set_index("train")
+    train_rows = []
+    for t in planned:
+        d = delays[t.id]
+        r = sim.loc[t.id] if t.id in sim.index else None
+        arrived = bool(r is not None and bool(r["arrived"]))
+        arrival = float(r["arrival_s"]) if arrived else math.nan
+        delay = arrival - ref[t.id] if arrived else math.nan
+        primary = d.total_s
+        train_rows.append({
+            "run_key": spec.key, "timetable": spec.timetable, "regime": spec.regime, "controller": spec.controller, "seed": spec.seed,
+            "train": t.id, "service": t.service, "direction": t.direction, "scheduled_departure_s": t.depart_s,
+            "departure_s": float(r["departure_s"]) if r is not None and r["departure_s"] == r["departure_s"] else math.nan,
+            "reference_arrival_s": round(ref[t.id], 2), "arrival_s": arrival, "arrived": arrived,
+            "arrival_delay_s": round(delay, 2) if arrived else math.nan, "origin_delay_s": d.origin_s,
+            "dwell_extension_s": round(sum(d.dwell_s), 1), "primary_delay_s": round(primary, 1),
+            "knock_on_delay_s": round(max(0.0, delay - primary), 2) if arrived else math.nan,
+        })
+    tr = pd.DataFrame(train_rows)
+    arr = tr[tr["arrived"]]
+    n = len(tr)
+    s = res.summary
+    row = _base_row(spec)
+    row.update(
+        status="ok", error="", trains=n, trains_arrived=int(len(arr)),
+        punctuality_3min_share=round(float((arr["arrival_delay_s"] <= PUNCTUALITY_THRESHOLDS_S[0]).sum()) / n, 4) if n else math.nan,
+        punctuality_5min_share=round(float((arr["arrival_delay_s"] <= PUNCTUALITY_THRESHOLDS_S[1]).sum()) / n, 4) if n else math.nan,
+        mean_arrival_delay_s=round(float(arr["arrival_delay_s"].mean()), 2) if len(arr) else math.nan,
+        max_arrival_delay_s=round(float(arr["arrival_delay_s"].max()), 2) if len(arr) else math.nan,
+        primary_delay_s=round(float(tr["primary_delay_s"].sum()), 1),
+        knock_on_delay_s=round(float(arr["knock_on_delay_s"].sum()), 2),
+        min_gap_m=round(float(s["min_gap_m"]), 3) if s.get("min_gap_m") is not None else math.nan,
+        gap_violations=int(s["gap_violations"]), collisions=int(s["collisions"]), emergency_brakes=int(s["emergency_brakes"]),
+    )
+    return row, train_rows
+
+
+# ---------------------------------------------------------------------------------------------
+# Append-only CSV store
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(round(v, 6))
+    if isinstance(v, bool):
+        return "True" if v else "False"
+    return str(v)
+
+
+def _csv_line(values: Iterable) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow([_fmt(v) for v in values])
+    return buf.getvalue()
+
+
+def _repair(path: Path, columns: list[str]) -> None:
+    """Create the file with its header, drop a line cut off by an interruption, check the header."""
+    if not path.is_file() or path.stat().st_size == 0:
+        path.write_text(_csv_line(columns))
+        return
+    data = path.read_bytes()
+    if not data.endswith(b"\n"):
+        cut = data.rfind(b"\n")
+        with open(path, "rb+") as f:
+            f.truncate(cut + 1 if cut >= 0 else 0)
+        if cut < 0:
+            path.write_text(_csv_line(columns))
+            return
+    header = next(csv.reader(io.StringIO(path.read_text().split("\n", 1)[0])))
+    if header != columns:
+        raise VcsumoError(f"{path}: its columns are not those this vcsumo writes (an older batch?); choose another --out")
+
+
+def _append(path: Path, rows: list[dict], columns: list[str]) -> None:
+    if not rows:
+        return
+    text = "".join(_csv_line(r.get(c) for c in columns) for r in rows)
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _atomic_csv(df: pd.DataFrame, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    df.to_csv(tmp, index=False)
+    os.replace(tmp, path)
+
+
+def read_batch(out: Path) -> pd.DataFrame:
+    """``batch.csv`` of a batch folder (last row per run key), typed; empty frame if none."""
+    path = Path(out) / "batch.csv"
+    if not path.is_file():
+        return pd.DataFrame(columns=BATCH_COLUMNS)
+    df = pd.read_csv(path, dtype={"controller": str, "error": str, "timetable": str, "run_key": str}, keep_default_na=True)
+    df = df[df["status"].isin(["ok", "failed"])]
+    for c in ("controller", "error"):
+        df[c] = df[c].fillna("")
+    return df.drop_duplicates("run_key", keep="last").reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Planning a batch
+
+
+def resolve_timetables(spec: str | Iterable[str | Path] | None, line: Line) -> list[Path]:
+    """Timetable files from names, paths or glob patterns (comma-separated); default: all of the line's."""
+    import glob
+
+    from vcsumo.line import project_root
+    from vcsumo.timetable import resolve_timetable_path
+
+    if spec is None or (isinstance(spec, str) and not spec.strip()):
+        files = sorted((project_root() / "routes" / line.name).glob("*.yaml"))
+        if not files:
+            raise InputError(None, "--timetables", f"no timetables in routes/{line.name}/ (give names or paths)")
+        return [f.resolve() for f in files]
+    items = [x.strip() for x in spec.split(",")] if isinstance(spec, str) else [str(x) for x in spec]
+    out: list[Path] = []
+    for item in (x for x in items if x):
+        if any(ch in item for ch in "*?["):
+            hits = sorted(glob.glob(item)) or sorted(glob.glob(str(project_root() / item)))
+            hits = [h for h in hits if h.endswith((".yaml", ".yml"))]
+            if not hits:
+                raise InputError(None, "--timetables", f"no timetable file matches '{item}'")
+            out += [Path(h).resolve() for h in hits]
+        else:
+            try:
+                out.append(Path(resolve_timetable_path(item, line)).resolve())
+            except InputError as exc:
+                if exc.field == "--timetable":
+                    raise InputError(exc.path, "--timetables", exc.message) from None
+                raise
+    seen: set[Path] = set()
+    return [p for p in out if not (p in seen or seen.add(p))]
+
+
+def default_batch_out(line: Line, delay_sha256: str, step_length_s: float, block_length_m: float | None) -> Path:
+    """``results/batch-<line>-<hash>``: the same for the same line and settings, so re-running resumes."""
+    h = hashlib.sha256(f"{file_digest(line.path)}|{delay_sha256}|{step_length_s:g}|{block_length_m}".encode()).hexdigest()[:8]
+    return Path("results") / f"batch-{line.name}-{h}"
+
+
+def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: list[int], controllers: list[str], delays: DelayConfig,
+              out: Path, step_length_s: float = 0.5, block_length_m: float | None = None, command: str = "") -> list[RunSpec]:
+    """Every timetable × regime × controller (vc only) × seed, in that order."""
+    for r in regimes:
+        if r not in REGIMES:
+            raise InputError(None, "--regimes", f"unknown regime '{r}' (choose from {', '.join(REGIMES)})")
+    if not seeds:
+        raise InputError(None, "--seeds", "no seeds")
+    d_sha = config_digest(delays)
+    l_sha = file_digest(line.path)
+    specs = []
+    for tt in timetables:
+        t_sha = file_digest(tt)
+        for regime in regimes:
+            for ctrl in (controllers or [DEFAULT_CONTROLLER]) if regime == "vc" else [""]:
+                for seed in seeds:
+                    key = run_key(t_sha, regime, ctrl, seed, d_sha, l_sha, step_length_s, block_length_m)
+                    name = f"{tt.stem}-{regime}{'-' + ctrl if ctrl else ''}-s{seed}-{key[:8]}"
+                    specs.append(RunSpec(
+                        line_path=str(line.path), block_length_m=block_length_m, timetable_path=str(tt), timetable=tt.stem,
+                        timetable_sha256=t_sha, regime=regime, controller=ctrl, seed=int(seed), delays=delays.model_dump(mode="json"),
+                        delay_config_sha256=d_sha, step_length_s=step_length_s, run_dir=str((out / "runs" / name).resolve()), key=key,
+                        line=line.name, command=command,
+                    ))
+    return specs
+
+
+# ---------------------------------------------------------------------------------------------
+# UIC 406 per timetable (cached in uic406.csv)
+
+
+def _uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step_length_s: float, block_length_m: float | None) -> pd.DataFrame:
+    path = out / "uic406.csv"
+    have = pd.read_csv(path, dtype={"timetable_sha256": str, "timetable": str}) if path.is_file() else pd.DataFrame(columns=UIC_COLUMNS)
+    if list(have.columns) != UIC_COLUMNS:
+        have = pd.DataFrame(columns=UIC_COLUMNS)
+
+    def cached(sha: str, regime: str) -> bool:
+        m = (have["timetable_sha256"] == sha) & (have["regime"] == regime) & (have["window_s"] == window_s) & (have["step_length_s"] == step_length_s)
+        return bool(m.any())
+
+    need: dict[str, tuple[RunSpec, set[str]]] = {}
+    for s in specs:
+        if not cached(s.timetable_sha256, s.regime):
+            need.setdefault(s.timetable_sha256, (s, set()))[1].add(s.regime)
+    if not need:
+        return have
+    from vcsumo.network import build_network
+    from vcsumo.timetable import load_timetable, plan_trains
+    from vcsumo.uic406 import capacity_consumption, convoy_pairs
+
+    net = build_network(line, block_length_m)
+    new = []
+    for sha, (spec, regimes) in need.items():
+        try:
+            tt, p = load_timetable(Path(spec.timetable_path), line)
+            trains = plan_trains(tt, p, line, net.topology, dt=step_length_s)
+            pairs = convoy_pairs(tt, trains)
+        except VcsumoError:
+            continue  # the runs fail with the same error
+        cache: dict = {}
+        for regime in sorted(regimes):
+            df = capacity_consumption(line, net, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache)
+            df.insert(0, "timetable", spec.timetable)
+            df.insert(1, "timetable_sha256", sha)
+            df.insert(3, "step_length_s", step_length_s)
+            new.append(df[UIC_COLUMNS])
+    if new:
+        have = pd.concat([have] + new, ignore_index=True) if len(have) else pd.concat(new, ignore_index=True)
+        _atomic_csv(have, path)
+    return have
+
+
+def _capacity(uic: pd.DataFrame, spec: RunSpec, window_s: float) -> tuple[float, float]:
+    m = (uic["timetable_sha256"] == spec.timetable_sha256) & (uic["regime"] == spec.regime) & (uic["window_s"] == window_s) & (uic["step_length_s"] == spec.step_length_s)
+    sel = uic[m]
+    if sel.empty:
+        return math.nan, math.nan
+    return float(sel["consumption_pct"].max()), float(sel["cyclic_consumption_pct"].max())
+
+
+# ---------------------------------------------------------------------------------------------
+# Execution
+
+
+def _silence_worker(log_path: str) -> None:
+    """Worker initializer: SUMO's console messages go to workers.log, not over the progress bar."""
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+
+def _run_local(pending: list[RunSpec], workers: int, log_path: Path, on_outcome: Callable[[RunSpec, dict], None]) -> None:
+    """Run in a pool of spawned processes; a crashed worker (SUMO abort) breaks only its runs."""
+    if workers <= 0:
+        for spec in pending:
+            on_outcome(spec, run_one(spec))
+        return
+    attempts: dict[str, int] = {}
+    queue = list(pending)
+    ctx = multiprocessing.get_context("spawn")
+    while queue:
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx, initializer=_silence_worker, initargs=(str(log_path),))
+        futures: dict[Future, RunSpec] = {}
+        try:
+            for spec in queue:
+                futures[pool.submit(run_one, spec)] = spec
+            queue = []
+            not_done = set(futures)
+            broken = False
+            while not_done:
+                done, not_done = wait(not_done, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    spec = futures[fut]
+                    try:
+                        outcome = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        attempts[spec.key] = attempts.get(spec.key, 0) + 1
+                        if attempts[spec.key] >= 2:
+                            outcome = failed_outcome(spec, "the worker process died during the run (SUMO crashed?)")
+                        else:
+                            queue.append(spec)
+                            continue
+                    except Exception as exc:  # pragma: no cover - run_one never raises
+                        outcome = failed_outcome(spec, _error_message(exc))
+                    on_outcome(spec, outcome)
+                if broken:
+                    # the pool is unusable: every unfinished run is retried in a fresh pool
+                    for fut in not_done:
+                        spec = futures[fut]
+                        attempts[spec.key] = attempts.get(spec.key, 0) + 1
+                        if attempts[spec.key] >= 2:
+                            on_outcome(spec, failed_outcome(spec, "the worker process died during the run (SUMO crashed?)"))
+                        else:
+                            queue.append(spec)
+                    not_done = set()
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+
+
+def _run_dask(pending: list[RunSpec], scheduler: str, on_outcome: Callable[[RunSpec, dict], None]) -> None:
+    """Run on a Dask distributed cluster: each run is one task (workers need vcsumo and the input paths)."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError:  # pragma: no cover - dask[distributed] is a dependency
+        raise VcsumoError("--scheduler: dask.distributed is not installed (pip install 'dask[distributed]')") from None
+    try:
+        client = Client(scheduler, timeout="20s")
+    except Exception as exc:
+        raise VcsumoError(f"--scheduler: cannot connect to the Dask scheduler at {scheduler}: {_error_message(exc)}") from None
+    try:
+        futures = {client.submit(run_one, spec, key=f"vcsumo-batch-{spec.key}-{os.getpid()}-{time.time_ns()}", pure=False, retries=1): spec for spec in pending}
+        for fut in as_completed(list(futures)):
+            spec = futures[fut]
+            try:
+                outcome = fut.result()
+            except Exception as exc:  # the task itself never raises; a lost worker does
+                outcome = failed_outcome(spec, f"dask: {_error_message(exc)}")
+            on_outcome(spec, outcome)
+    finally:
+        client.close()
+
+
+def run_batch(
+    line: Line | str | Path,
+    timetables: str | Iterable[str | Path] | None,
+    regimes: Iterable[str] = ("fbs", "mb", "vc"),
+    seeds: Iterable[int] = (1, 2, 3),
+    controllers: Iterable[str] | None = None,
+    delays: DelayConfig | None = None,
+    delay_config_path: Path | None = None,
+    out: Path | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    step_length_s: float = 0.5,
+    block_length_m: float | None = None,
+    window_s: float = 3600.0,
+    retry_failed: bool = False,
+    progress: Callable[[int, int, dict | None], None] | None = None,
+    command: str = "",
+) -> pd.DataFrame:
+    """Run (or resume) a batch; returns its rows (``BATCH_COLUMNS``) in plan order.
+
+    ``controllers`` (vc only; default ``cbf-cbc``) must not be given without the vc regime.
+    ``workers``: parallel processes (default: the number of CPUs; 0 runs in this process);
+    ``scheduler``: ``tcp://host:port`` of a Dask scheduler instead of local processes.
+    ``df.attrs`` holds ``out`` (the folder), ``new_runs`` (runs executed now), ``resumed_runs``
+    (found finished in ``batch.csv``), ``failed_runs`` and ``new_failed``.
+    ``progress(done, total, row)`` is called before the first new run and after every one.
+    """
+    if not isinstance(line, Line):
+        line = load_line(line)
+    if step_length_s <= 0 or step_length_s > 2:
+        raise VcsumoError(f"--step-length: {step_length_s} s is outside (0, 2] s")
+    regimes = [r.strip() for r in regimes if r.strip()]
+    if controllers is not None and "vc" not in regimes:
+        raise InputError(None, "--controllers", f"only the vc regime takes a controller (regimes are {', '.join(regimes)})")
+    controllers = [c.strip() for c in (controllers or [DEFAULT_CONTROLLER]) if c.strip()] or [DEFAULT_CONTROLLER]
+    seeds = [int(s) for s in seeds]
+    if len(set(seeds)) != len(seeds):
+        raise InputError(None, "--seeds", "a seed is repeated")
+    delays = delays or DelayConfig()
+    if window_s <= 0:
+        raise InputError(None, "--window-s", "the observation window must be positive")
+    tts = resolve_timetables(timetables, line)
+    out = Path(out) if out is not None else default_batch_out(line, config_digest(delays), step_length_s, block_length_m)
+    t_wall = time.perf_counter()
+    from vcsumo.network import build_network
+
+    build_network(line, block_length_m)  # once, before the workers need it
+    specs = plan_runs(line, tts, regimes, seeds, controllers, delays, out, step_length_s, block_length_m, command)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "runs").mkdir(exist_ok=True)
+    batch_csv, trains_csv = out / "batch.csv", out / "batch_trains.csv"
+    _repair(batch_csv, BATCH_COLUMNS)
+    _repair(trains_csv, TRAIN_COLUMNS)
+    existing = read_batch(out)
+    requested = {s.key for s in specs}
+    done_keys = set(existing["run_key"])
+    if retry_failed:
+        retry = set(existing.loc[(existing["status"] == "failed") & existing["run_key"].isin(requested), "run_key"])
+        if retry:
+            keep = pd.read_csv(batch_csv, dtype=str, keep_default_na=False)
+            _atomic_csv(keep[~keep["run_key"].isin(retry)], batch_csv)
+            done_keys -= retry
+    # train rows of runs without a run row (cut off by an interruption) are dropped
+    trains_df = pd.read_csv(trains_csv, dtype=str, keep_default_na=False)
+    if len(trains_df) and not trains_df["run_key"].isin(done_keys).all():
+        _atomic_csv(trains_df[trains_df["run_key"].isin(done_keys)], trains_csv)
+    pending = [s for s in specs if s.key not in done_keys]
+    uic = _uic_table(out, line, specs, window_s, step_length_s, block_length_m)
+    total = len(pending)
+    finished = [0]
+    new_failed = [0]
+    if progress:
+        progress(0, total, None)
+
+    def on_outcome(spec: RunSpec, outcome: dict) -> None:
+        row = outcome["row"]
+        row["capacity_consumption_pct"], row["capacity_consumption_cyclic_pct"] = _capacity(uic, spec, window_s)
+        _append(trains_csv, outcome["trains"], TRAIN_COLUMNS)
+        _append(batch_csv, [row], BATCH_COLUMNS)
+        finished[0] += 1
+        new_failed[0] += row["status"] != "ok"
+        if progress:
+            progress(finished[0], total, row)
+
+    if pending:
+        if scheduler:
+            _run_dask(pending, scheduler, on_outcome)
+        else:
+            n = (os.cpu_count() or 1) if workers is None else workers
+            _run_local(pending, n, out / "workers.log", on_outcome)
+    df = read_batch(out)
+    df = df[df["run_key"].isin(requested)]
+    order = {s.key: i for i, s in enumerate(specs)}
+    df = df.sort_values("run_key", key=lambda k: k.map(order)).reset_index(drop=True)[BATCH_COLUMNS]
+    # capacity consumption of this invocation's window (rows resumed from an earlier window are refreshed)
+    by_key = {s.key: s for s in specs}
+    caps = [_capacity(uic, by_key[k], window_s) for k in df["run_key"]]
+    df["capacity_consumption_pct"] = [c[0] for c in caps]
+    df["capacity_consumption_cyclic_pct"] = [c[1] for c in caps]
+    write_report(out, df, line, tts, delays, delay_config_path, seeds, regimes, controllers, step_length_s, block_length_m, window_s,
+                 time.perf_counter() - t_wall, total, len(specs) - total)
+    df.attrs.update(out=out, new_runs=total, resumed_runs=len(specs) - total, failed_runs=int((df["status"] != "ok").sum()), new_failed=new_failed[0])
+    return df
+
+
+# ---------------------------------------------------------------------------------------------
+# Report
+
+
+SUMMARY_AGG = {
+    "runs": ("seed", "size"), "failed": ("failed", "sum"), "trains": ("trains", "mean"),
+    "punctuality_3min_share": ("punctuality_3min_share", "mean"), "punctuality_5min_share": ("punctuality_5min_share", "mean"),
+    "mean_arrival_delay_s": ("mean_arrival_delay_s", "mean"), "max_arrival_delay_s": ("max_arrival_delay_s", "max"),
+    "primary_delay_s": ("primary_delay_s", "mean"), "knock_on_delay_s": ("knock_on_delay_s", "mean"),
+    "capacity_consumption_pct": ("capacity_consumption_pct", "first"), "capacity_consumption_cyclic_pct": ("capacity_consumption_cyclic_pct", "first"),
+    "gap_violations": ("gap_violations", "sum"), "collisions": ("collisions", "sum"), "emergency_brakes": ("emergency_brakes", "sum"),
+}
+
+
+def summarize(df: pd.DataFrame) -> pd.DataFrame:
+    """Per timetable × regime × controller: runs, failures and the means over seeds of the ok runs."""
+    if df.empty:
+        return pd.DataFrame(columns=["timetable", "regime", "controller", *SUMMARY_AGG])
+    d = df.copy()
+    d["failed"] = d["status"] != "ok"
+    ok = d[~d["failed"]]
+    counts = d.groupby(["timetable", "regime", "controller"], sort=False).agg(runs=("seed", "size"), failed=("failed", "sum"))
+    agg = {k: v for k, v in SUMMARY_AGG.items() if k not in ("runs", "failed")}
+    means = ok.groupby(["timetable", "regime", "controller"], sort=False).agg(**agg) if len(ok) else pd.DataFrame(columns=list(agg))
+    out = counts.join(means, how="left").reset_index()
+    return out.round(4)
+
+
+def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path], delays: DelayConfig, delay_config_path: Path | None,
+                 seeds: list[int], regimes: list[str], controllers: list[str], step_length_s: float, block_length_m: float | None,
+                 window_s: float, wall_time_s: float, new_runs: int, resumed_runs: int) -> None:
+    """``report/``: batch_summary.csv, the plots (from the CSVs only) and meta.json."""
+    inputs: dict[str, Path] = {"line": line.path}
+    for i, p in enumerate(timetables):
+        inputs[f"timetable_{i}_{p.stem}"] = p
+    if delay_config_path is not None:
+        inputs["delay_config"] = Path(delay_config_path)
+    params = {"seeds": seeds, "regimes": regimes, "controllers": controllers, "step_length_s": step_length_s,
+              "block_length_m": block_length_m, "uic406_window_s": window_s, "delays": delays.model_dump(mode="json"),
+              "delay_config_sha256": config_digest(delays), "runs": len(df), "new_runs": new_runs, "resumed_runs": resumed_runs,
+              "batch_wall_time_s": round(wall_time_s, 3)}
+    with ResultsFolder(out / "report", inputs=inputs, seed=None, params=params, overwrite=True) as rf:
+        df.to_csv(rf.path / "batch_runs.csv", index=False)
+        summarize(df).to_csv(rf.path / "batch_summary.csv", index=False)
+        uic = out / "uic406.csv"
+        if uic.is_file():
+            u = pd.read_csv(uic, dtype={"timetable_sha256": str})
+            shas = set(df["timetable_sha256"])
+            u[u["timetable_sha256"].isin(shas) & u["regime"].isin(regimes) & (u["window_s"] == window_s)].to_csv(rf.path / "uic406.csv", index=False)
+        plot_delays(out / "batch_trains.csv", rf.path / "batch_runs.csv", rf.path / "batch_delays.png")
+        plot_punctuality(rf.path / "batch_runs.csv", rf.path / "batch_punctuality.png")
+
+
+def _label(regime: str, controller) -> str:
+    return regime if not isinstance(controller, str) or not controller else f"{regime}\n{controller}"
+
+
+def plot_delays(trains_csv: Path, runs_csv: Path, path: Path) -> None:
+    """Arrival-delay distributions per regime (box plots, one panel per timetable), from the CSVs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = pd.read_csv(runs_csv, dtype={"run_key": str, "controller": str}, keep_default_na=False)
+    tr = pd.read_csv(trains_csv, dtype={"run_key": str, "controller": str}, keep_default_na=False)
+    tr = tr[tr["run_key"].isin(set(runs["run_key"]))]
+    tr = tr[tr["arrived"].astype(str) == "True"].copy()
+    tr["arrival_delay_s"] = pd.to_numeric(tr["arrival_delay_s"], errors="coerce")
+    tts = list(dict.fromkeys(runs["timetable"])) or ["(none)"]
+    fig, axes = plt.subplots(1, len(tts), figsize=(max(4.0, 3.2 * len(tts)), 4.2), squeeze=False, sharey=True)
+    for ax, tt in zip(axes[0], tts):
+        sub = tr[tr["timetable"] == tt]
+        groups = list(dict.fromkeys(zip(runs.loc[runs["timetable"] == tt, "regime"], runs.loc[runs["timetable"] == tt, "controller"])))
+        data, labels = [], []
+        for regime, ctrl in groups:
+            vals = sub[(sub["regime"] == regime) & (sub["controller"] == ctrl)]["arrival_delay_s"].dropna().to_numpy() / 60.0
+            data.append(vals if len(vals) else [float("nan")])
+            labels.append(_label(regime, ctrl))
+        if data:
+            ax.boxplot(data, showfliers=True, widths=0.6)
+            ax.set_xticks(range(1, len(labels) + 1), labels)
+        for thr, ls in zip(PUNCTUALITY_THRESHOLDS_S, ("--", ":")):
+            ax.axhline(thr / 60.0, color="grey", ls=ls, lw=0.8)
+        ax.set_title(tt)
+        ax.grid(alpha=0.3, axis="y")
+    axes[0][0].set_ylabel("arrival delay [min]  (lines: 3 and 5 min)")
+    fig.suptitle(f"{runs['line'].iloc[0] if len(runs) else ''} — arrival delay per regime (all seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_punctuality(runs_csv: Path, path: Path) -> None:
+    """Mean 3-min / 5-min punctuality per timetable and regime (bars), from batch_runs.csv."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = pd.read_csv(runs_csv, dtype={"controller": str}, keep_default_na=False)
+    runs = runs[runs["status"] == "ok"].copy()
+    fig, ax = plt.subplots(figsize=(8, 4))
+    if len(runs):
+        for c in ("punctuality_3min_share", "punctuality_5min_share"):
+            runs[c] = pd.to_numeric(runs[c], errors="coerce")
+        g = runs.groupby(["timetable", "regime", "controller"], sort=False)[["punctuality_3min_share", "punctuality_5min_share"]].mean()
+        labels = [f"{t}\n{_label(r, c)}" for t, r, c in g.index]
+        x = range(len(g))
+        ax.bar([i - 0.2 for i in x], 100 * g["punctuality_3min_share"], width=0.4, label="≤ 3 min")
+        ax.bar([i + 0.2 for i in x], 100 * g["punctuality_5min_share"], width=0.4, label="≤ 5 min")
+        ax.set_xticks(list(x), labels, fontsize=7)
+        ax.legend(fontsize=8)
+    ax.set_ylabel("punctual trains [%]")
+    ax.set_ylim(0, 105)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+

@@ -1,0 +1,549 @@
+"""UIC 406 capacity consumption: the timetable compressed on each line section.
+
+UIC leaflet 406 (2004, 2nd ed. 2013) measures how much of a line's capacity a timetable uses:
+on each line section, every train's *blocking-time stairs* are pushed together, in the
+timetable's order, until they touch (the timetable is *compressed*); the *occupation time* of
+the compressed timetable divided by the observation window is the capacity consumption.  This
+module computes that infrastructure occupation from the timetable alone — no simulation.
+
+Line sections
+-------------
+A line section is the main line's track of one direction between two consecutive *section
+boundaries*:
+
+* the two ends of the main line;
+* the stopping position of every station on that track (the train front at the platform's exit
+  signal);
+* every junction (the signal at the turnout).
+
+vcsumo stations have one platform track per direction and junctions are grade-separated, so
+trains cannot overtake inside a section: its train order is fixed, and trains start, end, join
+or leave only at its boundaries.  A train is counted on a section when it runs over all of it.
+Branches are not evaluated.  Sections without trains are not reported.
+
+Running profiles
+----------------
+Each train runs its *scheduled running profile* (:func:`timetable_run`): its unhindered run
+(:func:`vcsumo.running_time.unhindered_run`, SUMO's driving rules) from its scheduled departure,
+with the recovery margin of every stretch spread over the running: between two timing points
+(the departure, then every stop with a scheduled time and the scheduled arrival) the running is
+slowed uniformly (time × f, speed ÷ f, f ≥ 1) so that the train arrives at the scheduled time;
+it dwells for its dwell or until its scheduled departure, whichever is later.  Stretches without
+a scheduled arrival at their end are run unhindered.
+
+Blocking-time stairs
+--------------------
+The blocks of a section are the stretches between consecutive signals in it (the section's end
+boundary closes the last block).  A train's blocking time of block k [S_k, S_k+1] runs
+
+* from the moment it passes the *approach point* a_k, where a_k + D(v(a_k)) = S_k — computed by
+  :func:`vcsumo.blocking_time.fbs_blocking_times` with SUMO's braking rule (D = v²/(2b) + ½·Δt·v,
+  :func:`vcsumo.blocking_time.sumo_reaction_time`); a train standing at a stop approaches the
+  blocks ahead of it only once it departs (a block starting at its stop is blocked from the
+  departure);
+* to the moment its tail clears S_k+1 (front at S_k+1 + L); a train ending its run inside the
+  block (terminating at a platform, leaving the network) releases it when it arrives.
+
+``regime`` chooses the blocks and the braking rule:
+
+* ``fbs`` — the line's signals (:func:`vcsumo.studies.headway.signal_positions`);
+* ``mb`` — moving block as *virtual blocks* of ``virtual_block_m`` (default 25 m) with SUMO's
+  moving-block braking distance D(v) + 50 m (:data:`vcsumo.blocking_time.SUMO_MB_MARGIN_M`): the
+  stairs become the moving-block headway band (within ``virtual_block_m``/v);
+* ``vc`` — as ``mb``, except that a declared convoy follower approaches its own convoy leader at
+  the relative-braking-distance gap ``vc_gap_m`` instead of D(v) + 50 m.
+
+No setup, sighting or release times are added (SUMO's signalling has none, as in
+:mod:`vcsumo.blocking_time`); ``setup_s`` and ``release_s`` add them to every block.
+
+Compression and consumption
+---------------------------
+Trains keep the order in which they enter the section.  The first train stays; each next train
+is moved to the earliest time at which none of its blocks starts before the same block of any
+train ahead of it is released.  The *occupation time* is the time from the first blocking-time
+start to the last blocking-time end of the compressed timetable — for two identical trains on a
+uniform section, one minimum headway plus one train's whole stair,
+(D + B + L)/v + (D + n·B + L)/v.  Consumption = occupation / window × 100 %
+(``consumption_pct``), the window being the timetable's hour (``window_s`` = 3600 s: all of a
+timetable's trains are taken as running in it).
+
+On a long section the occupation time contains one whole passage of a train (76 km of Bologna -
+Firenze: about 1,100 s, 30 % of the hour, with a single train), which hides the difference
+between regimes.  The *cyclic* occupation (``cycle_s``, ``cyclic_consumption_pct``) closes the
+cycle instead, as UIC 406 does for periodic timetables: the first train of the next period is
+compressed behind the last one, so it is the sum of the minimum headways around the cycle (two
+identical trains: 2·(D + B + L)/v).  Both are reported.
+
+No buffer times are added (UIC 406's K = A + B + C + D: this is A, the infrastructure
+occupation; UIC's recommended limits for A + B are 75 % peak on high-speed and mixed lines, 85 %
+on suburban lines).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Protocol
+
+import numpy as np
+import pandas as pd
+
+from vcsumo.blocking_time import SUMO_MB_MARGIN_M, BrakingRule, fbs_blocking_times, sumo_reaction_time
+from vcsumo.errors import VcsumoError
+from vcsumo.line import Line
+from vcsumo.network import BuiltNetwork
+from vcsumo.running_time import Stop, time_at, unhindered_run
+from vcsumo.timetable import PlannedTrain, TimetableFile
+from vcsumo.topology import Topology
+
+UIC_REGIMES = ("fbs", "mb", "vc")
+DEFAULT_WINDOW_S = 3600.0
+SECTION_COLUMNS = [
+    "regime", "direction", "section", "from_km", "to_km", "length_m", "blocks", "trains", "scheduled_span_s",
+    "occupation_s", "window_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct",
+]
+
+
+class _Rule(Protocol):
+    def distance(self, v: np.ndarray | float) -> np.ndarray | float: ...
+
+
+@dataclass(frozen=True)
+class MarginRule:
+    """A braking rule plus a fixed margin: D(v) + margin (SUMO's moving block)."""
+
+    base: BrakingRule
+    margin_m: float
+
+    def distance(self, v):
+        return self.base.distance(v) + self.margin_m
+
+
+@dataclass(frozen=True)
+class GapRule:
+    """A constant approach distance: relative braking distance, the follower's gap only."""
+
+    gap_m: float
+
+    def distance(self, v):
+        return np.zeros_like(np.asarray(v, dtype=float)) + self.gap_m
+
+
+# ---------------------------------------------------------------------------------------------
+# Sections
+
+
+@dataclass(frozen=True)
+class Section:
+    """A line section: the main track of one direction between two boundaries."""
+
+    direction: str
+    from_km: float
+    to_km: float
+    from_name: str
+    to_name: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.from_name}-{self.to_name}"
+
+    @property
+    def length_m(self) -> float:
+        return abs(self.to_km - self.from_km) * 1000.0
+
+
+def line_sections(line: Line, topo: Topology) -> list[Section]:
+    """Every main-line section of both directions, in running order (see the module docstring)."""
+    d = line.data
+    out: list[Section] = []
+    for direction in ("up", "down"):
+        try:
+            track = topo.track_for("main", direction)
+        except KeyError:  # pragma: no cover - every built line has both
+            continue
+        bounds: dict[float, str] = {round(d.km_start, 6): "start", round(d.km_end, 6): "end"}
+        for p in topo.platforms.values():
+            if p.track == track.id:
+                bounds[round(p.km_stop, 6)] = p.station_id
+        for br in d.branches:
+            bounds.setdefault(round(br.junction_km, 6), f"J:{br.id}")
+        kms = sorted(bounds, reverse=not track.increasing)
+        for a, b in zip(kms, kms[1:]):
+            out.append(Section(direction, a, b, bounds[a], bounds[b]))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Timetable running profile
+
+
+def _route_end_s(t: PlannedTrain) -> float:
+    end_pos = t.end_pos_m if t.end_pos_m is not None else float(t.profile.lengths_m[-1])
+    return float(t.profile.starts_m[-1] + end_pos)
+
+
+def _dep_index(run: pd.DataFrame, stop_s: float, from_index: int = 0) -> int:
+    """Index of the last sample standing at a stop (the moment of departure)."""
+    s = run["s_m"].to_numpy()
+    v = run["speed_mps"].to_numpy()
+    at = np.nonzero((np.abs(s - stop_s) < 0.6) & (v <= 1e-9))[0]
+    at = at[at >= from_index]
+    if len(at) == 0:
+        return from_index
+    # the contiguous standing samples after the first arrival
+    i = int(at[0])
+    while i + 1 < len(s) and abs(s[i + 1] - stop_s) < 0.6 and v[i + 1] <= 1e-9:
+        i += 1
+    return i
+
+
+def timetable_run(train: PlannedTrain, dt: float = 0.5) -> pd.DataFrame:
+    """The train's scheduled running profile in absolute time (``time_s, s_m, speed_mps, accel_mps2``).
+
+    See "Running profiles" in the module docstring: the unhindered run, each stretch between
+    timing points slowed uniformly to meet the scheduled arrival at its end, dwells extended to
+    the scheduled departures.
+    """
+    p = train.stock.params()
+    run = unhindered_run(p, train.profile, dt=dt, s0=train.start_s_m, v0=train.depart_speed_mps,
+                         stops=[Stop(s.s_m, s.dwell_s) for s in train.stops], end_s=_route_end_s(train), stop_at_end=train.stop_at_end)
+    t = run["time_s"].to_numpy()
+    s = run["s_m"].to_numpy()
+    v = run["speed_mps"].to_numpy().copy()
+    acc = run["accel_mps2"].to_numpy().copy()
+    # standing intervals [arrival index, departure index] at each stop
+    stand: list[tuple[int, int]] = []
+    i = 0
+    for st in train.stops:
+        j = _dep_index(run, st.s_m, i)
+        a = j
+        while a > i and abs(s[a - 1] - st.s_m) < 0.6 and v[a - 1] <= 1e-9:
+            a -= 1
+        stand.append((a, j))
+        i = j
+    n = len(train.stops)
+    # timing points 1..n (stops) and n+1 (end): scheduled arrival / departure
+    sched_arr = [st.arrival_s for st in train.stops] + [train.scheduled_arrival_s]
+    sched_dep = [st.departure_s for st in train.stops] + [None]
+    # running segments: k = 0..n, from the departure of point k (0 = origin) to the arrival at point k+1
+    seg = [((0 if k == 0 else stand[k - 1][1]), (stand[k][0] if k < n else len(t) - 1)) for k in range(n + 1)]
+    run_dur = [t[b] - t[a] for a, b in seg]
+    dwell_dur = [t[b] - t[a] for a, b in stand]
+    factor = [1.0] * (n + 1)
+    new_dwell = list(dwell_dur)
+    anchor_time, first = train.depart_s, 0
+    for k in range(n + 1):
+        is_timing = sched_arr[k] is not None or sched_dep[k] is not None or k == n
+        if not is_timing:
+            continue
+        if sched_arr[k] is not None:
+            running = sum(run_dur[first : k + 1])
+            dwelling = sum(dwell_dur[first:k])
+            f = (sched_arr[k] - anchor_time - dwelling) / running if running > 0 else 1.0
+            for m in range(first, k + 1):
+                factor[m] = max(1.0, f)
+        arrival = anchor_time + sum(run_dur[m] * factor[m] for m in range(first, k + 1)) + sum(dwell_dur[first:k])
+        if k < n:
+            departure = max(arrival + dwell_dur[k], sched_dep[k] if sched_dep[k] is not None else -math.inf)
+            new_dwell[k] = departure - arrival
+            anchor_time, first = departure, k + 1
+    # map every sample onto the new time axis
+    t_new = np.empty_like(t)
+    clock = train.depart_s
+    for k in range(n + 1):
+        a, b = seg[k]
+        f = factor[k]
+        t_new[a : b + 1] = clock + (t[a : b + 1] - t[a]) * f
+        v[a + 1 : b + 1] /= f
+        acc[a + 1 : b + 1] /= f * f
+        clock = t_new[b]
+        if k < n:
+            a2, b2 = stand[k]
+            span = t[b2] - t[a2]
+            frac = (t[a2 : b2 + 1] - t[a2]) / span if span > 0 else np.zeros(b2 - a2 + 1)
+            t_new[a2 : b2 + 1] = clock + frac * new_dwell[k]
+            clock = t_new[b2]
+    return pd.DataFrame({"time_s": t_new, "s_m": s, "speed_mps": v, "accel_mps2": acc})
+
+
+def reference_arrival_s(train: PlannedTrain, dt: float = 0.5, run: pd.DataFrame | None = None) -> float:
+    """The arrival a train is measured against: its scheduled arrival, or, without one, the end of
+    its timetable profile (:func:`timetable_run`) — plus the 1 s end stop SUMO makes a train
+    leaving the network at the end of a track (or a branch) serve before it arrives."""
+    if train.scheduled_arrival_s is not None:
+        return float(train.scheduled_arrival_s)
+    run = timetable_run(train, dt) if run is None else run
+    extra = 1.0 if train.final_stop is None and train.stop_at_end and train.end_pos_m is not None else 0.0
+    return float(run["time_s"].iloc[-1]) + extra
+
+
+def reference_arrivals(trains: list[PlannedTrain], dt: float = 0.5) -> dict[str, float]:
+    """:func:`reference_arrival_s` of every train (trains repeating a pattern share one profile)."""
+    cache: dict[tuple, pd.DataFrame] = {}
+    out: dict[str, float] = {}
+    for t in trains:
+        if t.scheduled_arrival_s is not None:
+            out[t.id] = float(t.scheduled_arrival_s)
+            continue
+        key = _pattern_key(t)
+        if key not in cache:
+            cache[key] = timetable_run(_at_time_zero(t), dt)
+        rel = cache[key]
+        extra = 1.0 if t.final_stop is None and t.stop_at_end and t.end_pos_m is not None else 0.0
+        out[t.id] = t.depart_s + float(rel["time_s"].iloc[-1]) + extra
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Blocking-time stairs
+
+
+def stairs(
+    run: pd.DataFrame, markers_s: list[float], section_end_s: float, length_m: float, rule: _Rule,
+    full_run: pd.DataFrame | None = None, setup_s: float = 0.0, release_s: float = 0.0,
+) -> pd.DataFrame:
+    """Blocking-time stairs of one train over consecutive blocks.
+
+    ``markers_s`` are the block starts (route positions, m; sorted), the last block ends at
+    ``section_end_s``.  ``run`` is the part of the train's profile from which it approaches these
+    blocks (it starts at the train's departure from its last stop before them, or its origin);
+    ``full_run`` (default ``run``) gives the times its tail clears each block.  Returns
+    ``block_start_m, block_end_m, approach_m, t_start_s, t_end_s, blocking_time_s``.
+    """
+    full = run if full_run is None else full_run
+    s0 = float(run["s_m"].iloc[0])
+    # a block starting where the train stands (origin, stop) is approached at departure:
+    # fbs_blocking_times only takes signals beyond the run's start, so move it 2 mm ahead
+    sig = [x + 0.002 if abs(x - s0) < 1e-3 else x for x in markers_s]
+    blocks = fbs_blocking_times(run, sig, section_end_s, length_m, rule)  # type: ignore[arg-type]
+    if len(blocks) != len(markers_s):
+        raise VcsumoError(f"blocking-time stairs: {len(markers_s) - len(blocks)} block(s) start before the train's run")
+    fs = full["s_m"].to_numpy()
+    t_last = float(full["time_s"].iloc[-1])
+    ends = np.array(list(markers_s[1:]) + [section_end_s]) + length_m
+    t_end = time_at(full, np.minimum(ends, fs[-1]))
+    t_end = np.where(ends > fs[-1] + 1e-6, t_last, t_end)  # released when the train arrives (leaves the line)
+    out = pd.DataFrame({
+        "block_start_m": np.asarray(markers_s, dtype=float), "block_end_m": np.array(list(markers_s[1:]) + [section_end_s], dtype=float),
+        "approach_m": blocks["approach_m"].to_numpy(), "t_start_s": blocks["t_approach_s"].to_numpy() - setup_s, "t_end_s": t_end + release_s,
+    })
+    out["blocking_time_s"] = out["t_end_s"] - out["t_start_s"]
+    return out
+
+
+@dataclass(frozen=True)
+class Compression:
+    """A compressed section timetable."""
+
+    shifts_s: np.ndarray
+    """Time each train was moved by (negative: earlier), s."""
+    occupation_s: float
+    """First blocking-time start to last blocking-time end after compression, s."""
+    cycle_s: float
+    """Cyclic occupation: the earliest the first train could run again behind the compressed
+    timetable (the pattern repeated), i.e. the sum of the minimum headways around the cycle, s."""
+
+
+def compress(starts: np.ndarray, ends: np.ndarray, pair_starts: dict[tuple[int, int], np.ndarray] | None = None) -> Compression:
+    """Compress blocking-time stairs (arrays trains × blocks, rows in train order).
+
+    Train 0 stays; train j moves to the earliest time at which each of its block starts is at or
+    after the release of the same block by every train ahead of it.  ``pair_starts[(i, j)]``
+    replaces train j's block starts against train i (a convoy follower approaching its own
+    leader).  Blocks a train does not use are nan.
+    """
+    starts = np.atleast_2d(np.asarray(starts, dtype=float))
+    ends = np.atleast_2d(np.asarray(ends, dtype=float))
+    n = starts.shape[0]
+    if n == 0 or starts.size == 0:
+        return Compression(np.zeros(n), 0.0, 0.0)
+    pair_starts = pair_starts or {}
+
+    def need(j_starts_against, upto: int, shift: np.ndarray) -> float:
+        best = -math.inf
+        for i in range(upto):
+            diff = ends[i] + shift[i] - j_starts_against(i)
+            if np.any(~np.isnan(diff)):
+                best = max(best, float(np.nanmax(diff)))
+        return best
+
+    shift = np.zeros(n)
+    for j in range(1, n):
+        req = need(lambda i, j=j: pair_starts.get((i, j), starts[j]), j, shift)
+        shift[j] = req if math.isfinite(req) else 0.0
+    occupation = float(np.nanmax(ends + shift[:, None]) - np.nanmin(starts + shift[:, None]))
+    cycle = need(lambda i: starts[0], n, shift)
+    return Compression(shift, occupation, cycle if math.isfinite(cycle) else occupation)
+
+
+# ---------------------------------------------------------------------------------------------
+# A whole timetable
+
+
+def convoy_pairs(tt: TimetableFile, trains: list[PlannedTrain]) -> list[tuple[str, str]]:
+    """(leader train, follower train) of every declared convoy: the k-th trains of the services
+    listed in ``convoys[].services`` form the k-th convoy, each following the one listed before it."""
+    by_service: dict[str, list[str]] = {}
+    for t in trains:
+        by_service.setdefault(t.service, []).append(t.id)
+    pairs = []
+    for cv in tt.convoys:
+        lists = [by_service.get(s, []) for s in cv.services]
+        for a, b in zip(lists, lists[1:]):
+            pairs += list(zip(a, b))
+    return pairs
+
+
+def _at_time_zero(t: PlannedTrain) -> PlannedTrain:
+    """The same train departing at time 0 (every scheduled time shifted with it)."""
+    off = t.depart_s
+
+    def sh(x: float | None) -> float | None:
+        return None if x is None else x - off
+
+    stops = [replace(s, arrival_s=sh(s.arrival_s), departure_s=sh(s.departure_s)) for s in t.stops]
+    return replace(t, depart_s=0.0, stops=stops, scheduled_arrival_s=sh(t.scheduled_arrival_s))
+
+
+def _pattern_key(t: PlannedTrain) -> tuple:
+    return (tuple(t.edges), t.stock.name, round(t.start_s_m, 3), round(t.depart_speed_mps, 3), round(_route_end_s(t), 3), t.stop_at_end,
+            tuple((round(s.s_m, 3), s.dwell_s, None if s.departure_s is None else round(s.departure_s - t.depart_s, 3)) for s in t.stops))
+
+
+def capacity_consumption(
+    line: Line, net: BuiltNetwork, trains: list[PlannedTrain], regime: str = "fbs", convoys: list[tuple[str, str]] | None = None,
+    window_s: float = DEFAULT_WINDOW_S, step_s: float = 0.5, virtual_block_m: float = 25.0, vc_gap_m: float = 50.0,
+    setup_s: float = 0.0, release_s: float = 0.0, cache: dict | None = None,
+) -> pd.DataFrame:
+    """UIC 406 capacity consumption of a timetable on every line section (one row per section).
+
+    ``cache`` (a dict, optional) keeps running profiles and stairs between calls on the same
+    trains (e.g. one call per regime).
+
+    Columns: ``regime, direction, section, from_km, to_km, length_m, blocks, trains,
+    scheduled_span_s`` (first blocking start to last blocking end as scheduled),
+    ``occupation_s`` (compressed), ``window_s``, ``consumption_pct``.
+    """
+    if regime not in UIC_REGIMES:
+        raise VcsumoError(f"UIC 406: unknown regime '{regime}' (choose from {', '.join(UIC_REGIMES)})")
+    if window_s <= 0:
+        raise VcsumoError(f"UIC 406: window {window_s} s must be positive")
+    topo = net.topology
+    from vcsumo.studies.headway import signal_positions
+
+    followers = {f: l for l, f in (convoys or [])} if regime == "vc" else {}
+    cache = {} if cache is None else cache
+    patterns: dict[tuple, pd.DataFrame] = cache.setdefault(("patterns", step_s), {})
+    stair_cache: dict[tuple, pd.DataFrame] = cache.setdefault(("stairs", step_s, virtual_block_m, setup_s, release_s), {})
+    runs: dict[str, pd.DataFrame] = {}
+    for t in trains:
+        key = _pattern_key(t)
+        if key not in patterns:
+            patterns[key] = timetable_run(_at_time_zero(t), step_s)
+        r = patterns[key].copy()
+        r["time_s"] += t.depart_s
+        runs[t.id] = r
+    rows = []
+    for sec in line_sections(line, topo):
+        track = f"main_{sec.direction}"
+        members = []  # (entry time, train, s_A, s_B)
+        for t in trains:
+            prof = t.profile
+            try:
+                s_a, s_b = prof.s_of("main", sec.from_km), prof.s_of("main", sec.to_km)
+            except KeyError:
+                continue
+            if s_b <= s_a or topo.edges[prof.edges[prof.index_at(min(s_a + 0.5, s_b))]].track != track:
+                continue
+            tol_start = t.stock.length_m + 2.0 if sec.from_name in ("start", "end") else 1.0
+            if t.start_s_m > s_a + tol_start or _route_end_s(t) < s_b - 1.0:
+                continue
+            entry = float(time_at(runs[t.id], max(s_a, t.start_s_m))[0])
+            members.append((entry, t.id, t, s_a, s_b))
+        if not members:
+            continue
+        members.sort(key=lambda m: (m[0], m[1]))
+        per_train = []
+        vc_starts: dict[str, np.ndarray] = {}
+        for _, tid, t, s_a, s_b in members:
+            prof = t.profile
+            rule_base = BrakingRule(t.stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
+            if regime == "fbs":
+                markers = [x for x in signal_positions(net, t.edges, prof) if s_a - 1e-3 <= x < s_b - 1e-3]
+                rule: _Rule = rule_base
+            else:
+                n = max(1, int(math.ceil((s_b - s_a) / virtual_block_m - 1e-9)))
+                markers = [s_a + k * (s_b - s_a) / n for k in range(n)]
+                rule = MarginRule(rule_base, SUMO_MB_MARGIN_M)
+            if regime == "fbs":
+                keys: list = [round(prof.km_at(x)[1], 3) for x in markers]
+            else:
+                keys = list(range(len(markers)))
+            # a train inserted at the start of the track (origin 'start'/'end') has no blocks behind it
+            keep = [i for i, x in enumerate(markers) if x >= t.start_s_m - 1e-3]
+            markers, keys = [markers[i] for i in keep], [keys[i] for i in keep]
+            if not markers:
+                continue
+            pkey = (_pattern_key(t), sec, "fbs" if regime == "fbs" else "mb")
+            if pkey not in stair_cache:
+                stair_cache[pkey] = _train_stairs(patterns[_pattern_key(t)], t, markers, s_b, rule, setup_s, release_s)
+            st = stair_cache[pkey]
+            per_train.append((tid, keys, st["t_start_s"].to_numpy() + t.depart_s, st["t_end_s"].to_numpy() + t.depart_s))
+            if tid in followers:
+                vkey = pkey + ("vc", vc_gap_m)
+                if vkey not in stair_cache:
+                    stair_cache[vkey] = _train_stairs(patterns[_pattern_key(t)], t, markers, s_b, GapRule(vc_gap_m), setup_s, release_s)
+                vc_starts[tid] = stair_cache[vkey]["t_start_s"].to_numpy() + t.depart_s
+        if not per_train:
+            continue
+        all_keys = sorted({k for _, ks, _, _ in per_train for k in ks})
+        col = {k: i for i, k in enumerate(all_keys)}
+        S = np.full((len(per_train), len(all_keys)), np.nan)
+        E = np.full_like(S, np.nan)
+        vc_rows: dict[str, np.ndarray] = {}
+        for r, (tid, ks, ts, te) in enumerate(per_train):
+            idx = [col[k] for k in ks]
+            S[r, idx] = ts
+            E[r, idx] = te
+            if tid in vc_starts:
+                row = np.full(len(all_keys), np.nan)
+                row[idx] = vc_starts[tid]
+                vc_rows[tid] = row
+        order = [tid for tid, _, _, _ in per_train]
+        pos = {tid: i for i, tid in enumerate(order)}
+        pair_starts = {}
+        for tid, row in vc_rows.items():
+            lead = followers[tid]
+            if lead in pos and pos[lead] < pos[tid]:
+                pair_starts[(pos[lead], pos[tid])] = row
+        comp = compress(S, E, pair_starts)
+        occ = comp.occupation_s
+        span = float(np.nanmax(E) - np.nanmin(S))
+        rows.append({
+            "regime": regime, "direction": sec.direction, "section": sec.label, "from_km": sec.from_km, "to_km": sec.to_km,
+            "length_m": round(sec.length_m, 1), "blocks": len(all_keys), "trains": len(per_train),
+            "scheduled_span_s": round(span, 2), "occupation_s": round(occ, 2), "window_s": window_s,
+            "consumption_pct": round(100.0 * occ / window_s, 2), "cycle_s": round(comp.cycle_s, 2),
+            "cyclic_consumption_pct": round(100.0 * comp.cycle_s / window_s, 2),
+        })
+    return pd.DataFrame(rows, columns=SECTION_COLUMNS)
+
+
+def _train_stairs(pattern_run: pd.DataFrame, t: PlannedTrain, markers: list[float], s_b: float, rule: _Rule, setup_s: float, release_s: float) -> pd.DataFrame:
+    """Stairs of one train (relative to its departure) over a section's blocks."""
+    # the leg from which the blocks are approached: from the departure of the last stop at or
+    # before the first block (or the origin)
+    first = markers[0]
+    i0 = 0
+    for st in t.stops:
+        if st.s_m <= first + 1e-3:
+            i0 = _dep_index(pattern_run, st.s_m, i0)
+    leg = pattern_run.iloc[i0:].reset_index(drop=True)
+    return stairs(leg, markers, s_b, t.stock.length_m, rule, full_run=pattern_run, setup_s=setup_s, release_s=release_s)
+
+
+def max_consumption(sections: pd.DataFrame) -> float:
+    """The largest consumption over the sections, % (nan without sections)."""
+    if sections.empty:
+        return math.nan
+    return float(sections["consumption_pct"].max())
