@@ -32,7 +32,10 @@ from vcsumo.dynamics import braking_distance
 from vcsumo.running_time import time_at
 
 SUMO_MB_MARGIN_M = 50.0
-"""SUMO's Rail model keeps braking distance + 50 m in moving block above 30 km/h (CIR-ELKE)."""
+"""SUMO's Rail model keeps braking distance + 50 m in moving block from 30 km/h (CIR-ELKE)."""
+SUMO_MB_SLOW_MARGIN_M = 5.0
+"""Below 30 km/h the 50 m margin is dropped and only the train's minGap (5 m) remains."""
+SUMO_MB_MARGIN_SPEED_MPS = 30.0 / 3.6
 
 
 def sumo_reaction_time(step_s: float) -> float:
@@ -94,17 +97,30 @@ def fbs_blocking_times(run: pd.DataFrame, signals_s: list[float], route_end_s: f
     return pd.DataFrame(rows, columns=["block_start_m", "block_end_m", "approach_m", "t_approach_s", "t_clear_s", "blocking_time_s"])
 
 
-def mb_headway_profile(run: pd.DataFrame, length_m: float, rule: BrakingRule, margin_m: float = SUMO_MB_MARGIN_M, step_m: float = 50.0) -> pd.DataFrame:
-    """Moving-block headway H(y) along the run; columns ``s_m, speed_mps, headway_s``."""
+def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m: float = SUMO_MB_MARGIN_M, step_m: float = 50.0,
+                       convoy_lag_s=None) -> pd.DataFrame:
+    """Moving-block headway H(y) along the run; columns ``s_m, speed_mps, headway_s``.
+
+    The follower at y keeps D(v(y)) + margin to the rear of the train ahead (margin 50 m from
+    30 km/h, SUMO's minGap of 5 m below): H(y) = t(z) − t(y) with z = y + D + margin + L.
+    For a VC convoy ahead (``convoy_lag_s``: the time between its leader and its last train passing a
+    point, as a function of the leader's speed there) the rear passes z ``convoy_lag_s(v(z))`` after
+    the leader: H(y) = t(z) + τ_c(z) − t(y), with ``length_m`` then the last train's length.
+    """
     s = run["s_m"].to_numpy()
     v = run["speed_mps"].to_numpy()
     grid = np.arange(float(s[0]), float(s[-1]), step_m)
     vy = np.interp(grid, s, v)
-    ahead = grid + rule.distance(vy) + margin_m + length_m
+    L = length_m(vy) if callable(length_m) else length_m
+    margin = np.where(vy >= SUMO_MB_MARGIN_SPEED_MPS, margin_m, SUMO_MB_SLOW_MARGIN_M) if margin_m == SUMO_MB_MARGIN_M else margin_m
+    ahead = grid + rule.distance(vy) + margin + L
     t_y = time_at(run, grid)
     t_ahead = time_at(run, np.minimum(ahead, s[-1]))
     over = ahead > s[-1]
     t_ahead[over] = float(run["time_s"].iloc[-1]) + (ahead[over] - s[-1]) / max(float(v[-1]), 0.1)
+    if convoy_lag_s is not None:
+        vz = np.interp(np.minimum(ahead, s[-1]), s, v)
+        t_ahead = t_ahead + convoy_lag_s(vz)
     return pd.DataFrame({"s_m": grid, "speed_mps": vy, "headway_s": t_ahead - t_y})
 
 

@@ -206,6 +206,79 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
     out_console.print(f"wrote {out / 'headway.csv'}")
 
 
+@study.command("capacity")
+@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--train", default=None, help="Train type (default: the line's default_train)")
+@click.option("--controllers", default="cbc,cbf-cbc", show_default=True, help="VC controllers (NAME or NAME:PARAMS), comma-separated; '' for none")
+@click.option("--convoy-sizes", default="1,2,3,4", show_default=True, help="VC convoy sizes, comma-separated")
+@click.option("--directions", default="up,down", show_default=True, help="Directions to study")
+@click.option("--patterns", default=None, help="Stopping patterns: non-stop, all-stops (default: both where the line has intermediate stations)")
+@click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
+@click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step for FBS/MB, s")
+@click.option("--vc-step-length", type=float, default=0.2, show_default=True, help="SUMO and controller step for VC, s")
+@click.option("--seed", type=int, default=42, show_default=True)
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
+def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_sizes: str, directions: str, patterns: str | None, block_length_m: float | None,
+                 step_length: float, vc_step_length: float, seed: int, out: Path | None) -> None:
+    """Line capacity under FBS, MB and VC (each controller, convoy sizes), per direction and stopping pattern."""
+    from vcsumo.line import load_line
+    from vcsumo.network import build_network
+    from vcsumo.results import ResultsFolder, default_out
+    from vcsumo.rolling_stock import load_rolling_stock
+    from vcsumo.studies.capacity import PATTERNS, run_capacity_study
+
+    line = load_line(line_spec)
+    name = train or line.data.default_train
+    if not name:
+        raise VcsumoError(f"{line.path}: default_train: the line names no default train; pass --train")
+    stock = load_rolling_stock(name)
+    ctrls = [c.strip() for c in controllers.split(",") if c.strip()]
+    try:
+        sizes = [int(x) for x in convoy_sizes.split(",") if x.strip()]
+    except ValueError:
+        raise VcsumoError(f"--convoy-sizes: '{convoy_sizes}' is not a comma-separated list of integers") from None
+    dirs = tuple(d.strip() for d in directions.split(",") if d.strip())
+    if not dirs or any(d not in ("up", "down") for d in dirs):
+        raise VcsumoError(f"--directions: '{directions}' (choose up, down)")
+    pats = None
+    if patterns:
+        pats = tuple(p.strip() for p in patterns.split(",") if p.strip())
+        if any(p not in PATTERNS for p in pats):
+            raise VcsumoError(f"--patterns: '{patterns}' (choose from {', '.join(PATTERNS)})")
+    net = build_network(line, block_length_m)
+    out = out or default_out("capacity", line.name)
+    with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params={"train": name, "controllers": ctrls, "convoy_sizes": sizes, "directions": dirs,
+                       "patterns": pats, "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length}) as rf:
+        with _progress() as prog:
+            task = prog.add_task(f"capacity {line.name}", total=1.0)
+
+            def upd(k: int, n: int, desc: str) -> None:
+                prog.update(task, completed=k / n if n else 1.0, description=f"capacity {line.name}: {desc}")
+
+            df = run_capacity_study(line, net, stock, rf.path, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd)
+    _print_table(df, f"capacity — {line.name} ({name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
+                 "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"])
+    out_console.print(f"wrote {out / 'capacity.csv'}")
+
+
+@study.command("run")
+@click.argument("study_file", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (overrides the file's out)")
+def study_run_cmd(study_file: Path, out: Path | None) -> None:
+    """Run a study definition file (studies/*.yaml): capacity, headway, batch or junction."""
+    import os
+
+    from vcsumo.study_files import load_study, study_arguments
+
+    st = load_study(study_file)
+    args = study_arguments(st, Path(study_file), out)
+    os.environ["VCSUMO_STUDY_FILE"] = str(Path(study_file).resolve())
+    try:
+        cli.main(args=args, prog_name="vcsumo", standalone_mode=False)
+    finally:
+        os.environ.pop("VCSUMO_STUDY_FILE", None)
+
+
 # ----------------------------------------------------------------------------------------------
 @cli.group("reproduce")
 def reproduce() -> None:

@@ -114,3 +114,89 @@ def plot_terlizzi2024(traj: pd.DataFrame, path: Path, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_capacity(df: pd.DataFrame, path: Path) -> None:
+    """Capacity (trains/h per direction) by regime, controller and convoy size; one panel per direction × pattern."""
+    if df.empty:
+        return
+    groups = list(df.groupby(["direction", "stopping_pattern"]))
+    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.5), squeeze=False)
+    for ax, ((d, pat), g) in zip(axes[0], groups):
+        labels, values, colors = [], [], []
+        palette = {"fbs": "#888888", "mb": "#4477aa"}
+        vc_cols = ["#cc6677", "#ddcc77", "#117733", "#882255", "#44aa99", "#aa4499"]
+        ctrls = [c for c in dict.fromkeys(g[g.regime == "vc"].controller)]
+        for _, r in g.iterrows():
+            if r.regime == "vc":
+                labels.append(f"VC {r.controller}\nn={r.convoy_size}")
+                colors.append(vc_cols[ctrls.index(r.controller) % len(vc_cols)])
+            else:
+                labels.append(r.regime.upper())
+                colors.append(palette[r.regime])
+            values.append(r.capacity_trains_per_h)
+        ax.bar(range(len(values)), values, color=colors)
+        ax.set_xticks(range(len(values)), labels, rotation=60, fontsize=7, ha="right")
+        ax.set_ylabel("capacity [trains/h per direction]")
+        ax.set_title(f"{df.line.iloc[0]} — {d}, {pat}")
+        ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_time_distance_stairs(examples: dict, setups: dict, path: Path, line_name: str) -> None:
+    """Time–distance diagram of one released sequence per regime with its blocking-time stairs.
+
+    FBS: one rectangle per block (from the approach point's time to the tail clearing the next
+    signal); MB / VC: the band reserved ahead of each unit (braking distance + 50 m) until its
+    last train's tail has passed.  Stairs come from the leader's unhindered run, shifted by the
+    release interval; the lines are the simulated trains.
+    """
+    import numpy as np
+
+    if not examples:
+        return
+    fig, axes = plt.subplots(1, len(examples), figsize=(6 * len(examples), 6), squeeze=False)
+    for ax, (regime, res) in zip(axes[0], examples.items()):
+        setup = setups[res.units[0][0].direction]
+        full = setup.full
+        run = res.run
+        t = run.time_s.to_numpy()
+        s = run.s_m.to_numpy()
+        v = run.speed_mps.to_numpy()
+        km = np.array([full.km_at(x)[1] for x in s])
+        stock = res.units[0][0].stock
+        n = len(res.units[0])
+        gap = res.row.get("intra_convoy_gap_m")
+        L_u = n * stock.length_m + (n - 1) * (gap if gap == gap and gap is not None else 0.0)
+        for j in range(len(res.units)):
+            shift = j * res.h
+            color = f"C{j}"
+            if res.blocks is not None:
+                for _, b in res.blocks.iterrows():
+                    k0, k1 = full.km_at(b.block_start_m)[1], full.km_at(b.block_end_m)[1]
+                    ax.fill_betweenx([k0, k1], (b.t_approach_s + shift) / 60, (b.t_clear_s + shift) / 60, color=color, alpha=0.25, lw=0)
+            else:
+                d = v * v / (2 * stock.service_brake_decel_mps2) + 50.0
+                t_app = np.interp(s - d, s, t, left=t[0])
+                t_clr = np.interp(s + L_u, s, t, right=np.nan)
+                ax.fill_betweenx(km, (t_app + shift) / 60, (t_clr + shift) / 60, color=color, alpha=0.25, lw=0)
+            ax.plot((t + shift) / 60, km, color=color, lw=0.8, ls="--")
+        traces = res.probe.sim.speed_traces if res.probe is not None else {}
+        for u in res.units:
+            for tr in u:
+                if tr.id in traces:
+                    ts, _ = traces[tr.id]
+                    off = full.length_m - tr.profile.length_m
+                    kms = [full.km_at(x + off)[1] for x in ts[::10]]
+                    tt = tr.depart_s + np.arange(len(ts))[::10] * (res.run.time_s.iloc[1] - res.run.time_s.iloc[0])
+                    ax.plot(tt / 60, kms, color="k", lw=0.9)
+        ax.set_xlabel("time [min]")
+        ax.set_ylabel("km")
+        title = regime.upper() if regime != "vc" else f"VC {res.row['controller']} n={n}"
+        ax.set_title(f"{line_name} {setup.direction}: {title}, h = {res.h:.1f} s")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

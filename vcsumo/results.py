@@ -67,6 +67,13 @@ class ResultsFolder:
         self._t0 = 0.0
         self.extra_meta: dict[str, Any] = {}
 
+    def _all_inputs(self) -> dict[str, Path]:
+        inputs = dict(self.inputs)
+        study = os.environ.get("VCSUMO_STUDY_FILE")
+        if study:
+            inputs.setdefault("study", Path(study))
+        return inputs
+
     def __enter__(self) -> "ResultsFolder":
         if self.final.exists() and any(self.final.iterdir()) and not self.overwrite:
             raise VcsumoError(f"{self.final}: output folder exists and is not empty (choose another --out or remove it)")
@@ -87,7 +94,7 @@ class ResultsFolder:
             "wall_time_s": round(time.perf_counter() - self._t0, 3),
             "seed": self.seed,
             "versions": versions(),
-            "inputs": {k: {"path": str(v), "sha256": file_digest(v)} for k, v in self.inputs.items() if v and Path(v).is_file()},
+            "inputs": {k: {"path": str(v), "sha256": file_digest(v)} for k, v in self._all_inputs().items() if v and Path(v).is_file()},
             "parameters": self.params,
         }
         meta.update(self.extra_meta)

@@ -175,7 +175,7 @@ def sumo_args(
         "--time-to-teleport", "-1", "--collision.action", "warn", "--collision.check-junctions", "true",
         "--collision.mingap-factor", "0",
         "--no-step-log", "true", "--duration-log.disable", "true", "--default.speeddev", "0",
-        "--message-log", str(out / "sumo_messages.log"),
+        "--message-log", str(out / "sumo_messages.log"), "--aggregate-warnings", "3",
         "--tripinfo-output", str(out / "tripinfo.xml"), "--stop-output", str(out / "stops.xml"),
     ]
     if full_outputs:

@@ -288,6 +288,8 @@ class _Follower:
     released_at_s: float = math.nan
     stops_m: list[float] = field(default_factory=list)
     platforms_m: list[float] = field(default_factory=list)
+    params: object = None
+    pred_params: object = None
     next_stop: int = 0
     stop_handovers: int = 0
     at_stop: bool = False
@@ -335,7 +337,8 @@ class VCDriver:
                 elif ego.end_pos_m is not None and ego.stop_at_end:
                     stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
                     plats.append(0.0)
-                self.followers[ego.id] = _Follower(ego, pred, ids, nominal, sup, d_min, frames, stops_m=stops, platforms_m=plats)
+                self.followers[ego.id] = _Follower(ego, pred, ids, nominal, sup, d_min, frames, stops_m=stops, platforms_m=plats,
+                                                   params=ego.stock.params(), pred_params=pred.stock.params())
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         arrange_convoy_departures(convoys, {fid: f.d_min + 2.0 for fid, f in self.followers.items()})
 
@@ -426,7 +429,7 @@ class VCDriver:
             obs = Observation(
                 time_s=t, step_s=self.step_s, ego_id=fid,
                 ego=TrainStateMsg(t, st.s_m, st.speed_mps, st.accel_mps2, f.last_cmd.force_n if f.last_cmd else 0.0),
-                params=f.plan.stock.params(), profile=f.plan.profile, received=received, predecessor=f.pred.id, convoy=f.convoy,
+                params=f.params, profile=f.plan.profile, received=received, predecessor=f.pred.id, convoy=f.convoy,
                 sensed_gap_m=sensed_gap, sensed_speed_mps=sensed_speed,
             )
             t0 = time.perf_counter()
@@ -446,7 +449,7 @@ class VCDriver:
                 if not f.in_emergency:
                     f.emergency_episodes += 1
             f.in_emergency = cmd.emergency
-            p = f.plan.stock.params()
+            p = f.params
             force = float(cmd.force_n)
             grad = f.plan.profile.mean_gradient(st.s_m, p.length_m)
             tf = f.plan.profile.tunnel_factor_at(st.s_m)
@@ -461,7 +464,7 @@ class VCDriver:
                 m = received.get(f.pred.id)
                 s_l, v_l = (m.state.position_m, m.state.speed_mps) if m is not None else (st.s_m, 0.0)
             ps = f.pred.stock
-            pp = ps.params()
+            pp = f.pred_params
             # approaching its own stop the follower keeps to service braking, so that SUMO (which
             # serves the stop) can always take over; the stop target is an obstacle too
             near_stop = stop_target is not None

@@ -35,21 +35,23 @@ class Probe:
     speed_deficit: dict[str, float] = field(default_factory=dict)
     """Largest speed deficit (unhindered − actual) before each measuring point, m/s."""
 
-    def compute_speed_deficits(self, points_m: dict[str, float], traces: dict[str, tuple[list[float], list[float]]], order: list[str], start_delays: dict[str, float], rel_tol: float = 0.005, abs_tol_mps: float = 0.3) -> None:
-        """Speed deficit before each point, normalised so that a value above 0 means hindered."""
+    def compute_speed_deficits(self, points_m: dict[str, float], traces: dict[str, tuple[list[float], list[float]]], order: list[str], start_delays: dict[str, float], rel_tol: float = 0.005, abs_tol_mps: float = 0.3, pairs: list[tuple[str, str]] | None = None) -> None:
+        """Speed deficit before each point, normalised so that a value above 0 means hindered.
+
+        Each train is compared with its reference (by default the first train of ``order``; for
+        convoys ``pairs`` gives (train, same member of the first convoy)).
+        """
         import numpy as np
 
-        ref = traces.get(order[0])
+        pairs = pairs if pairs is not None else [(tid, order[0]) for tid in order[1:]]
         for lab, x in points_m.items():
             worst = -math.inf
-            if ref is None:
-                self.speed_deficit[lab] = math.inf
-                continue
-            rs, rv = np.asarray(ref[0]), np.asarray(ref[1])
-            for tid in order[1:]:
-                if tid not in traces or start_delays.get(tid, 0.0) > 0.5:
+            for tid, ref_id in pairs:
+                ref = traces.get(ref_id)
+                if ref is None or tid not in traces or start_delays.get(tid, 0.0) > 0.5:
                     worst = math.inf
                     break
+                rs, rv = np.asarray(ref[0]), np.asarray(ref[1])
                 fs, fv = np.asarray(traces[tid][0]), np.asarray(traces[tid][1])
                 sel = (fs <= x) & (fs >= rs[0])
                 if not sel.any():
@@ -60,20 +62,17 @@ class Probe:
                 worst = max(worst, float(excess.max()))
             self.speed_deficit[lab] = worst
 
-    def compute_delays(self, labels: list[str], order: list[str]) -> None:
-        first = order[0]
+    def compute_delays(self, labels: list[str], order: list[str], pairs: list[tuple[str, str]] | None = None) -> None:
+        """Time each train lost up to each point against its reference (as in compute_speed_deficits)."""
+        pairs = pairs if pairs is not None else [(tid, order[0]) for tid in order[1:]]
         for lab in labels:
             p = self.passages[self.passages.measuring_point == lab].set_index("train")["time_s"]
-            if first not in p.index:
-                self.delays[lab] = math.inf
-                continue
-            ref = p[first] - self.departures[first]
             worst = 0.0
-            for tid in order[1:]:
-                if tid not in p.index:
+            for tid, ref_id in pairs:
+                if tid not in p.index or ref_id not in p.index:
                     worst = math.inf
                     break
-                worst = max(worst, (p[tid] - self.departures[tid]) - ref)
+                worst = max(worst, (p[tid] - self.departures[tid]) - (p[ref_id] - self.departures[ref_id]))
             self.delays[lab] = worst
 
     def safe(self) -> bool:

@@ -1,0 +1,88 @@
+"""Tier 2/3 — capacity study: FBS < MB < VC, simulation vs blocking-time theory, study files."""
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from vcsumo.cli import main
+from vcsumo.rolling_stock import load_rolling_stock
+from vcsumo.studies.capacity import CAPACITY_COLUMNS, run_capacity_study
+
+from .conftest import write
+
+pytestmark = pytest.mark.sumo
+
+
+@pytest.fixture(scope="module")
+def felez_capacity(tmp_path_factory, line_factory, network_factory):
+    out = tmp_path_factory.mktemp("cap")
+    df = run_capacity_study(line_factory("felez_test"), network_factory("felez_test"), load_rolling_stock("felez2019"), out, ["cbc"], [1, 2, 3], directions=("up",))
+    return df, out
+
+
+def test_capacity_table_columns_and_files(felez_capacity):
+    df, out = felez_capacity
+    assert list(df.columns) == CAPACITY_COLUMNS
+    assert set(df.regime) == {"fbs", "mb", "vc"}
+    assert (out / "capacity.png").stat().st_size > 10_000 and (out / "time_distance.png").stat().st_size > 10_000
+    assert len(pd.read_csv(out / "capacity.csv")) == len(df)
+
+
+def test_capacity_ordering_and_safety(felez_capacity):
+    df, _ = felez_capacity
+    cap = df.set_index(["regime", "convoy_size"]).capacity_trains_per_h
+    assert cap[("fbs", 1)] < cap[("mb", 1)] < cap[("vc", 2)] < cap[("vc", 3)]
+    # a convoy of one train is moving block
+    assert cap[("vc", 1)] == cap[("mb", 1)]
+    # every train of a convoy counts: capacity = 3600 n / headway
+    for _, r in df.iterrows():
+        assert r.capacity_trains_per_h == pytest.approx(3600 * r.convoy_size / r.headway_sim_s, rel=1e-3)
+    assert (df.gap_violations == 0).all() and (df.collisions == 0).all()
+    assert df[df.regime == "fbs"].gain_vs_fbs.iloc[0] == 1.0
+    vc = df[(df.regime == "vc") & (df.convoy_size > 1)]
+    assert (vc.intra_convoy_gap_m > 0).all() and (vc.min_gap_m > 0).all()
+
+
+def test_capacity_simulation_agrees_with_blocking_time_theory(felez_capacity):
+    df, _ = felez_capacity
+    dev = (df.headway_sim_s - df.headway_analytic_s).abs() / df.headway_analytic_s
+    assert (dev < 0.05).all(), df[["regime", "convoy_size", "headway_sim_s", "headway_analytic_s"]]
+
+
+def test_study_file_runs_and_is_recorded(in_tmp, capsys):
+    study = write(in_tmp / "s.yaml", "study: capacity\nline: felez_test\ncontrollers: [cbc]\nconvoy_sizes: [1, 2]\ndirections: [up]\nout: capout\n")
+    assert main(["study", "run", str(study)]) == 0
+    df = pd.read_csv("capout/capacity.csv")
+    assert set(df.regime) == {"fbs", "mb", "vc"} and set(df.convoy_size) == {1, 2}
+    meta = json.loads(Path("capout/meta.json").read_text())
+    assert "study" in meta["inputs"] and meta["inputs"]["study"]["path"].endswith("s.yaml")
+    assert "capacity — felez_test" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "text,words",
+    [
+        ("study: capacity\nline: felez_test\ncolour: red\n", "colour: unknown key"),
+        ("study: speed\nline: felez_test\n", "study"),
+        ("line: felez_test\n", "study: required field is missing"),
+        ("study: capacity\nline: felez_test\nconvoy_sizes: [1, x]\n", "convoy_sizes[1]"),
+    ],
+)
+def test_bad_study_file(in_tmp, capsys, text, words):
+    study = write(in_tmp / "bad.yaml", text)
+    assert main(["study", "run", str(study)]) == 2
+    err = capsys.readouterr().err
+    assert str(study) in err and words in err
+
+
+def test_shipped_study_files_validate(root):
+    from vcsumo.study_files import load_study, study_arguments
+
+    files = sorted((root / "studies").glob("*.yaml"))
+    assert any(f.name == "capacity_firenze_bologna.yaml" for f in files)
+    for f in files:
+        st = load_study(f)
+        args = study_arguments(st, f, None)
+        assert "--line" in args

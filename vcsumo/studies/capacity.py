@@ -1,0 +1,383 @@
+"""Capacity study: how many trains per hour FBS, MB and VC let through, on this line, with these trains.
+
+For each direction, stopping pattern, regime and (VC) controller and convoy size:
+
+* **units** — single trains (FBS, MB) or convoys of ``n`` virtually coupled trains (VC) — are released
+  at an interval h on the direction's main track with a flying start at their unhindered speed
+  (release point: the line file's ``headway.release_km``, default the track start), and run to the
+  end of the line, stopping at the intermediate stations of the pattern (``all-stops``: every
+  station strictly between the line's first and last station; ``non-stop``: none);
+* the **minimum sustainable headway** is the smallest h at which the second unit's leader is
+  nowhere slower than the first unit's leader at the same position (0.3 m/s or 0.5 % tolerance)
+  and no gap violation or collision occurs: bisection on h (:mod:`vcsumo.studies.min_headway`, one
+  SUMO run per probe).  Only leaders are compared: a VC follower can only be held back through
+  its own leader, and its trajectory depends on its own (seeded, random) channel; how well it keeps
+  up is reported as ``intra_convoy_gap_m``;
+* ``headway_sim_s`` is the time between the unit leaders passing the critical section in that run;
+  ``headway_analytic_s`` is blocking-time theory on the leader's unhindered profile
+  (:mod:`vcsumo.blocking_time`: FBS blocks, MB absolute braking distance + 50 m; a VC convoy is one
+  train whose last member passes a point (n−1)·(L + d(v))/v after its leader, d(v) the coupled gap
+  measured as a function of speed, separated from the next convoy by moving block);
+* ``capacity_trains_per_h`` = 3600·n / headway (every train of a convoy counts);
+  ``gain_vs_fbs`` = capacity / FBS capacity in the same direction and stopping pattern (1.0 = same).
+
+VC with convoy size 1 has nothing to couple: it is moving block, and its rows repeat the MB result.
+
+Writes ``capacity.csv``, ``capacity.png`` (capacity by regime and convoy size) and
+``time_distance.png`` (one released sequence per regime with its blocking-time stairs).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from vcsumo.blocking_time import (
+    SUMO_MB_MARGIN_M,
+    BrakingRule,
+    fbs_blocking_times,
+    mb_headway_profile,
+    sumo_reaction_time,
+)
+from vcsumo.errors import InputError, VcsumoError
+from vcsumo.line import Line
+from vcsumo.network import BuiltNetwork
+from vcsumo.rolling_stock import RollingStock
+from vcsumo.route_profile import RouteProfile
+from vcsumo.running_time import Stop, speed_at, time_at, unhindered_run
+from vcsumo.simulation import MeasuringPoint, Scenario, simulate
+from vcsumo.studies.headway import release_km, signal_positions
+from vcsumo.studies.min_headway import Probe, search_min_headway
+from vcsumo.timetable import PlannedStop, PlannedTrain
+
+PATTERNS = ("non-stop", "all-stops")
+CAPACITY_COLUMNS = [
+    "line", "direction", "regime", "controller", "convoy_size", "stopping_pattern", "critical_section_km", "headway_sim_s",
+    "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions",
+    "train", "release_interval_s", "deviation_pct", "block_length_m", "emergency_brakes", "guard_interventions", "simulations", "wall_time_s",
+]
+
+
+@dataclass(frozen=True)
+class Case:
+    direction: str
+    regime: str
+    controller: str | None
+    convoy_size: int
+    pattern: str
+
+
+@dataclass
+class RouteSetup:
+    """One direction's route, release state, stops and the leader's unhindered run."""
+
+    direction: str
+    track_edges: list[str]
+    full: RouteProfile
+    release_s: float
+    v0: float
+    stops_full: list[tuple[str, str, float, float, float]]
+    """(station, platform, route position of the stop, dwell, platform length) on the full track."""
+    rel_km: float
+
+
+def _intermediate_stops(line: Line, net: BuiltNetwork, direction: str, full: RouteProfile, release_s: float) -> list[tuple[str, str, float, float, float]]:
+    topo = net.topology
+    stations = sorted(line.data.stations, key=lambda s: s.km)
+    inner = {s.id for s in stations[1:-1]}
+    out = []
+    for pid, p in topo.platforms.items():
+        if p.section != "main" or p.track != f"main_{direction}" or p.station_id not in inner:
+            continue
+        s_stop = float(full.starts_m[full.edges.index(p.edge)] + p.end_pos_m)
+        if s_stop > release_s + 1.0:
+            out.append((p.station_id, pid, s_stop, p.dwell_s, p.end_pos_m - p.start_pos_m))
+    return sorted(out, key=lambda x: x[2])
+
+
+def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float) -> RouteSetup:
+    topo = net.topology
+    track = topo.track_for("main", direction)
+    full = RouteProfile.from_edges(topo, track.edges)
+    rel = release_km(line, direction)
+    s_rel = full.s_of("main", rel)
+    start = min(stock.length_m + 1.0, full.length_m)
+    if s_rel <= start + 1.0:
+        s_rel, v0 = start, 0.0
+    else:
+        run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False)
+        v0 = speed_at(run0, s_rel)
+    return RouteSetup(direction, list(track.edges), full, s_rel, v0, _intermediate_stops(line, net, direction, full, s_rel), rel)
+
+
+def _train_at(topo, setup: RouteSetup, stock: RollingStock, tid: str, s_depart: float, stops: list, depart_s: float, service: str) -> PlannedTrain:
+    """A planned train departing at route position ``s_depart`` of the full track (flying start)."""
+    full = setup.full
+    i0 = full.index_at(s_depart)
+    edges = setup.track_edges[i0:]
+    prof = RouteProfile.from_edges(topo, edges)
+    off = float(full.starts_m[i0])
+    pstops = [PlannedStop(pid, st, s - off, dwell, None, None, plen) for st, pid, s, dwell, plen in stops]
+    return PlannedTrain(
+        id=tid, service=service, stock=stock, edges=edges, profile=prof, depart_s=depart_s, depart_pos_m=s_depart - off,
+        depart_speed_mps=setup.v0, direction=setup.direction, stops=pstops, end_pos_m=None, start_s_m=s_depart - off, stop_at_end=False,
+    )
+
+
+def unit_trains(topo, setup: RouteSetup, stock: RollingStock, case: Case, n_units: int, h: float, initial_gap_m: float) -> list[list[PlannedTrain]]:
+    """``n_units`` units released ``h`` apart; convoy members start ``initial_gap_m`` behind each other."""
+    stops = setup.stops_full if case.pattern == "all-stops" else []
+    units = []
+    for j in range(n_units):
+        members = []
+        for k in range(case.convoy_size):
+            s_dep = setup.release_s - k * (stock.length_m + initial_gap_m)
+            if s_dep < stock.length_m + 1.0:
+                raise VcsumoError(f"convoy of {case.convoy_size} does not fit before the release point {setup.rel_km} km; move headway.release_km")
+            members.append(_train_at(topo, setup, stock, f"{case.direction}_u{j}_m{k}", s_dep, stops, j * h, f"unit{j}"))
+        units.append(members)
+    return units
+
+
+def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float) -> pd.DataFrame:
+    stops = setup.stops_full if case.pattern == "all-stops" else []
+    return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops], stop_at_end=False)
+
+
+def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, regime: str, unit_length_m, step_s: float, s_check: float,
+                     convoy_lag_s=None) -> tuple[float, float, pd.DataFrame | None]:
+    """(headway s, critical position m, FBS blocks) of blocking-time theory over [release, s_check].
+
+    ``convoy_lag_s``: for a VC convoy, the time its last train passes a point after its leader, as a
+    function of speed — (n−1)·(L + d(v))/v (:func:`vcsumo.blocking_time.mb_headway_profile`).
+    """
+    rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
+    if regime == "fbs":
+        blocks = fbs_blocking_times(run, signal_positions(net, setup.track_edges, setup.full), setup.full.length_m, float(unit_length_m), rule)
+        sel = blocks[blocks.approach_m <= s_check]
+        i = sel.blocking_time_s.idxmax()
+        return float(sel.loc[i, "blocking_time_s"]), float(sel.loc[i, "block_start_m"]), blocks
+    prof = mb_headway_profile(run, unit_length_m, rule, SUMO_MB_MARGIN_M, convoy_lag_s=convoy_lag_s)
+    sel = prof[prof.s_m <= s_check]
+    i = sel.headway_s.idxmax()
+    return float(sel.loc[i, "headway_s"]), float(sel.loc[i, "s_m"]), None
+
+
+def gap_curve(records: pd.DataFrame, bin_mps: float = 5.0):
+    """The coupled gap as a function of speed, from a run's follower records (90th percentile per
+    speed bin, interpolated; a convoy's length n·L + (n−1)·d(v) follows it)."""
+    rec = records.dropna(subset=["gap_m", "speed_mps"])
+    rec = rec[rec.speed_mps > 1.0]
+    if rec.empty:
+        return lambda v: np.zeros_like(np.asarray(v, dtype=float))
+    bins = (rec.speed_mps // bin_mps).astype(int)
+    g = rec.groupby(bins).gap_m.quantile(0.9)
+    centres = (g.index.to_numpy() + 0.5) * bin_mps
+    values = g.to_numpy()
+    return lambda v: np.interp(np.asarray(v, dtype=float), centres, values)
+
+
+def convoy_lag(n: int, length_m: float, gap_of_v):
+    """Time between a convoy's leader and its last train passing a point: (n−1)·(L + d(v))/v, s."""
+    return lambda v: (n - 1) * (length_m + gap_of_v(v)) / np.maximum(np.asarray(v, dtype=float), 1.0)
+
+
+def _initial_gap(controller: str | None, stock: RollingStock, v0: float, step_s: float) -> float:
+    """Starting gap inside a convoy: the relative-braking gap at the release speed (guard formula) + 20 m."""
+    from vcsumo.vc import guaranteed_decel, strongest_decel
+
+    p = stock.params()
+    b_f = guaranteed_decel(p, v0, stock.emergency_brake_decel_mps2, -0.02)
+    a_l = strongest_decel(p, v0, stock.emergency_brake_decel_mps2, 0.02, 1.5)
+    return max(0.0, 1.5 * v0 * step_s + v0 * v0 / (2 * b_f) - v0 * v0 / (2 * a_l)) + 60.0
+
+
+@dataclass
+class CaseResult:
+    row: dict
+    probe: Probe | None
+    units: list[list[PlannedTrain]]
+    run: pd.DataFrame
+    blocks: pd.DataFrame | None
+    h: float
+
+
+def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSetup, case: Case, out: Path, step_s: float, vc_step_s: float,
+             resolution_s: float = 0.5, seed: int = 42) -> CaseResult:
+    """Bisection on the release interval for one case."""
+    t_wall = time.perf_counter()
+    topo = net.topology
+    dt = vc_step_s if case.regime == "vc" else step_s
+    run = leader_run(setup, stock, case, dt)
+    s_check = setup.full.length_m - 100.0
+    init_gap = _initial_gap(case.controller, stock, setup.v0, dt) if case.convoy_size > 1 else 0.0
+    # first guess from theory with the initial gap; the bisection decides
+    L_guess = case.convoy_size * stock.length_m + (case.convoy_size - 1) * init_gap
+    guess, crit, _ = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", L_guess, dt, s_check)
+    probes = [0]
+    mps = [MeasuringPoint("end", "main", setup.full.km_at(s_check)[1])]
+
+    def run_at(h: float) -> Probe:
+        units = unit_trains(topo, setup, stock, case, 2, h, init_gap)
+        trains = [t for u in units for t in u]
+        driver = None
+        if case.regime == "vc":
+            from vcsumo.vc import VCDriver, load_channel
+
+            driver = VCDriver(units, case.controller, dt, seed, load_channel(None))
+        probes[0] += 1
+        sim = simulate(Scenario(line, net, trains, case.regime, step_length_s=dt, measuring_points=mps, record_period_s=3600.0,
+                                full_outputs=False, trace_speeds=True, driver=driver, seed=seed), out / "probes" / f"h{h:08.3f}")
+        pr = Probe(h, sim.passages, {t.id: t.depart_s for t in trains}, sim.summary)
+        pairs = [(units[1][0].id, units[0][0].id)]
+        order = [t.id for t in trains]
+        pr.compute_delays(["end"], order, pairs)
+        start_delays = dict(zip(sim.trains.train, sim.trains.departure_delay_s.fillna(0.0)))
+        # every train's position in its own route frame: compare in the full-track frame
+        traces = {}
+        for t in trains:
+            off = setup.full.length_m - t.profile.length_m
+            sv = sim.speed_traces.get(t.id)
+            if sv is not None:
+                traces[t.id] = ([x + off for x in sv[0]], sv[1])
+        pr.compute_speed_deficits({"end": s_check}, traces, order, start_delays, pairs=pairs)
+        pr.units = units  # type: ignore[attr-defined]
+        pr.sim = sim  # type: ignore[attr-defined]
+        if driver is not None:
+            pr.vc = driver.summary()  # type: ignore[attr-defined]
+            pr.vc_records = pd.DataFrame(driver.records)  # type: ignore[attr-defined]
+        return pr
+
+    gap_of_v = None
+    if case.convoy_size > 1:
+        # calibration: one run with the units far apart gives the coupled gap as a function of
+        # speed; blocking-time theory with that convoy length brackets the search tightly
+        cal = run_at(3.0 * guess)
+        if hasattr(cal, "vc_records") and len(cal.vc_records):
+            gap_of_v = gap_curve(cal.vc_records)
+            guess, crit, _ = analytic_headway(net, setup, run, stock, "mb", stock.length_m, dt, s_check, convoy_lag(case.convoy_size, stock.length_m, gap_of_v))
+    found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=2.0, resolution_s=resolution_s)
+    h, pr = found["end"]
+    if math.isnan(h):
+        raise VcsumoError(f"no sustainable headway found for {case} (trains hindered at every interval tried)")
+    units = pr.units  # type: ignore[attr-defined]
+    # coupled gap inside convoys: median while running above half the release speed (reported),
+    # and as a function of speed for the analytic convoy length
+    gap = math.nan
+    if case.convoy_size > 1 and hasattr(pr, "vc_records") and len(pr.vc_records):
+        rec = pr.vc_records
+        fast = rec[rec.speed_mps > 0.5 * max(setup.v0, 10.0)]
+        gap = float(fast.gap_m.median()) if len(fast) else float(rec.gap_m.median())
+        gap_of_v = gap_curve(rec)
+    lag = convoy_lag(case.convoy_size, stock.length_m, gap_of_v) if gap_of_v is not None else None
+    h_an, crit, blocks = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", stock.length_m, dt, s_check, lag)
+    # simulated headway: leaders passing the critical section in the run at the minimum interval
+    tr0 = pr.sim.speed_traces  # type: ignore[attr-defined]
+    h_sim = h
+    lead0, lead1 = units[0][0], units[1][0]
+    try:
+        off0 = setup.full.length_m - lead0.profile.length_m
+        off1 = setup.full.length_m - lead1.profile.length_m
+        s0, _ = tr0[lead0.id]
+        s1, _ = tr0[lead1.id]
+        t0 = np.interp(crit - off0, s0, np.arange(len(s0)) * dt) + lead0.depart_s
+        t1 = np.interp(crit - off1, s1, np.arange(len(s1)) * dt) + lead1.depart_s
+        if s0[0] <= crit - off0 <= s0[-1] and s1[0] <= crit - off1 <= s1[-1]:
+            h_sim = float(t1 - t0)
+    except KeyError:
+        pass
+    summ = pr.summary
+    row = {
+        "line": line.name, "direction": case.direction, "regime": case.regime, "controller": case.controller or "", "convoy_size": case.convoy_size,
+        "stopping_pattern": case.pattern, "critical_section_km": round(setup.full.km_at(crit)[1], 3), "headway_sim_s": round(h_sim, 2),
+        "headway_analytic_s": round(h_an, 2), "intra_convoy_gap_m": round(gap, 1) if not math.isnan(gap) else math.nan,
+        "capacity_trains_per_h": round(3600.0 * case.convoy_size / h_sim, 2), "gain_vs_fbs": math.nan,
+        "min_gap_m": summ["min_gap_m"], "gap_violations": summ["gap_violations"], "collisions": summ["collisions"], "train": stock.name,
+        "release_interval_s": round(h, 2), "deviation_pct": round(100.0 * (h_sim - h_an) / h_an, 2),
+        "block_length_m": net.topology.block_length_m, "emergency_brakes": summ["emergency_brakes"],
+        "guard_interventions": getattr(pr, "vc", {}).get("guard_interventions", 0) if hasattr(pr, "vc") else 0,
+        "simulations": probes[0], "wall_time_s": round(time.perf_counter() - t_wall, 1),
+    }
+    _prune(out / "probes", f"h{h:08.3f}")
+    return CaseResult(row, pr, units, run, blocks, h)
+
+
+def _prune(folder: Path, keep: str) -> None:
+    import shutil
+
+    if folder.is_dir():
+        for d in folder.iterdir():
+            if d.name != keep:
+                shutil.rmtree(d, ignore_errors=True)
+
+
+def cases_for(directions, patterns, controllers, sizes) -> list[Case]:
+    out = []
+    for d in directions:
+        for pat in patterns:
+            out.append(Case(d, "fbs", None, 1, pat))
+            out.append(Case(d, "mb", None, 1, pat))
+            for c in controllers:
+                for n in sizes:
+                    out.append(Case(d, "vc", c, n, pat))
+    return out
+
+
+def run_capacity_study(
+    line: Line, net: BuiltNetwork, stock: RollingStock, out: Path, controllers: list[str], convoy_sizes: list[int],
+    directions: tuple[str, ...] = ("up", "down"), patterns: tuple[str, ...] | None = None, step_s: float = 0.5, vc_step_s: float = 0.2,
+    seed: int = 42, progress: Callable[[int, int, str], None] | None = None,
+) -> pd.DataFrame:
+    """Every case; writes ``capacity.csv``, ``capacity.png`` and ``time_distance.png`` into ``out``."""
+    from vcsumo.vc import parse_controller
+
+    for c in controllers:
+        parse_controller(c)
+    for n in convoy_sizes:
+        if not 1 <= n <= 8:
+            raise InputError(None, "--convoy-sizes", f"convoy size {n} is outside 1-8")
+    setups = {d: route_setup(line, net, stock, d, step_s) for d in directions}
+    if patterns is None:
+        patterns = tuple(p for p in PATTERNS if p == "non-stop" or any(setups[d].stops_full for d in directions))
+    cases = cases_for(directions, patterns, controllers, convoy_sizes)
+    rows: list[dict] = []
+    examples: dict[str, CaseResult] = {}
+    mb_rows: dict[tuple, dict] = {}
+    for k, case in enumerate(cases):
+        if progress:
+            progress(k, len(cases), f"{case.direction} {case.pattern} {case.regime} {case.controller or ''} n={case.convoy_size}")
+        if case.regime == "vc" and case.convoy_size == 1:
+            base = mb_rows.get((case.direction, case.pattern))
+            if base is not None:
+                r = dict(base, regime="vc", controller=case.controller, convoy_size=1)
+                rows.append(r)
+                continue
+        sub = out / "runs" / f"{case.direction}_{case.pattern}_{case.regime}_{case.controller or 'sumo'}_{case.convoy_size}".replace(":", "-")
+        res = run_case(line, net, stock, setups[case.direction], case, sub, step_s, vc_step_s, seed=seed,
+                       resolution_s=1.0 if case.regime == "vc" else 0.5)
+        rows.append(res.row)
+        if case.regime == "mb":
+            mb_rows[(case.direction, case.pattern)] = res.row
+        key = case.regime
+        if key not in examples or (case.regime == "vc" and case.convoy_size > examples[key].units[0].__len__()):
+            if case.direction == directions[0] and case.pattern == patterns[0]:
+                examples[key] = res
+    if progress:
+        progress(len(cases), len(cases), "done")
+    df = pd.DataFrame(rows, columns=CAPACITY_COLUMNS)
+    for (d, pat), g in df.groupby(["direction", "stopping_pattern"]):
+        fbs = g[g.regime == "fbs"].capacity_trains_per_h
+        if len(fbs):
+            df.loc[g.index, "gain_vs_fbs"] = (g.capacity_trains_per_h / float(fbs.iloc[0])).round(3)
+    df.to_csv(out / "capacity.csv", index=False)
+    from vcsumo.plots import plot_capacity, plot_time_distance_stairs
+
+    plot_capacity(df, out / "capacity.png")
+    plot_time_distance_stairs(examples, setups, out / "time_distance.png", line.name)
+    return df
