@@ -98,14 +98,14 @@ def fbs_blocking_times(run: pd.DataFrame, signals_s: list[float], route_end_s: f
 
 
 def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m: float = SUMO_MB_MARGIN_M, step_m: float = 50.0,
-                       convoy_lag_s=None) -> pd.DataFrame:
+                       rear_lag_at=None) -> pd.DataFrame:
     """Moving-block headway H(y) along the run; columns ``s_m, speed_mps, headway_s``.
 
     The follower at y keeps D(v(y)) + margin to the rear of the train ahead (margin 50 m from
     30 km/h, SUMO's minGap of 5 m below): H(y) = t(z) − t(y) with z = y + D + margin + L.
-    For a VC convoy ahead (``convoy_lag_s``: the time between its leader and its last train passing a
-    point, as a function of the leader's speed there) the rear passes z ``convoy_lag_s(v(z))`` after
-    the leader: H(y) = t(z) + τ_c(z) − t(y), with ``length_m`` then the last train's length.
+    For a VC convoy ahead (``rear_lag_at``: the time between its leader and its last train passing a
+    position) the rear passes z ``rear_lag_at(z)`` after the leader: H(y) = t(z) + τ_c(z) − t(y),
+    with ``length_m`` then the last train's length.
     """
     s = run["s_m"].to_numpy()
     v = run["speed_mps"].to_numpy()
@@ -118,9 +118,8 @@ def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m:
     t_ahead = time_at(run, np.minimum(ahead, s[-1]))
     over = ahead > s[-1]
     t_ahead[over] = float(run["time_s"].iloc[-1]) + (ahead[over] - s[-1]) / max(float(v[-1]), 0.1)
-    if convoy_lag_s is not None:
-        vz = np.interp(np.minimum(ahead, s[-1]), s, v)
-        t_ahead = t_ahead + convoy_lag_s(vz)
+    if rear_lag_at is not None:
+        t_ahead = t_ahead + rear_lag_at(np.minimum(ahead, s[-1]))
     return pd.DataFrame({"s_m": grid, "speed_mps": vy, "headway_s": t_ahead - t_y})
 
 

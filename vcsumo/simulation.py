@@ -326,11 +326,14 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass
     passages = pd.DataFrame(pass_rows, columns=["measuring_point", "train", "time_s", "speed_mps"])
     # stop events from SUMO's stop output
     plat_station = {p.id: p.station_id for p in scn.network.topology.platforms.values()}
+    plat_of_lane = {f"{p.edge}_0": p.id for p in scn.network.topology.platforms.values()}
     sched = {(t.id, s.platform): s for t in scn.trains for s in t.stops}
     stop_rows = []
     for r in _parse_xml_rows(out / "stops.xml", "stopinfo"):
         tid = r.get("id")
-        plat = r.get("busStop") or r.get("trainStop") or ""
+        plat = r.get("busStop") or r.get("trainStop") or plat_of_lane.get(r.get("lane", ""), "")
+        if not plat:
+            continue  # a stop at the end of a route, not at a platform
         s = sched.get((tid, plat))
         arr, dep = float(r.get("started", "nan")), float(r.get("ended", "nan"))
         stop_rows.append({

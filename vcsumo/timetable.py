@@ -118,6 +118,10 @@ class PlannedTrain:
     """Route position of the front at departure, m."""
     stop_at_end: bool = True
     """Brake to a stop at the end of the route (False: run off the end at speed)."""
+    shares_platforms: bool = False
+    """May berth behind another train standing in the same platform track (a virtually coupled
+    follower, standing in the platform with its convoy as one train).  Other trains stop at the
+    platform's departure end and wait until the platform track is clear."""
 
 
 def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
@@ -291,15 +295,29 @@ def routes_xml(trains: list[PlannedTrain], topo: Topology) -> str:
                 extra += f' arrival="{s.arrival_s:.1f}"'
             if s.departure_s is not None:
                 extra += f' until="{s.departure_s:.1f}"'
-            out.append(f'    <stop trainStop="{s.platform}" duration="{s.dwell_s:.1f}"{extra}/>')
+            out.append(f"    {_stop_element(topo, s.platform, t.shares_platforms)} duration=\"{s.dwell_s:.1f}\"{extra}/>")
         if t.final_stop is not None:
             extra = f' arrival="{t.scheduled_arrival_s:.1f}"' if t.scheduled_arrival_s is not None else ""
-            out.append(f'    <stop trainStop="{t.final_stop.platform}" duration="1"{extra}/>')
+            out.append(f"    {_stop_element(topo, t.final_stop.platform, t.shares_platforms)} duration=\"1\"{extra}/>")
         elif t.end_pos_m is not None and t.stop_at_end:
             out.append(f'    <stop lane="{t.edges[-1]}_0" endPos="{t.end_pos_m:.3f}" duration="1"/>')
         out.append("  </vehicle>")
     out.append("</routes>")
     return "\n".join(out) + "\n"
+
+
+def _stop_element(topo: Topology, platform_id: str, shared: bool) -> str:
+    """The opening of a SUMO stop element for a platform.
+
+    SUMO lets any train berth behind one already standing at a trainStop; independent trains must
+    not share a platform track, so they get an exact stopping position on the platform's lane (and
+    wait until it is free).  Virtually coupled followers use the trainStop and stand behind their
+    convoy's leader.
+    """
+    if shared:
+        return f'<stop trainStop="{platform_id}"'
+    p = topo.platforms[platform_id]
+    return f'<stop lane="{p.edge}_0" startPos="{p.start_pos_m:.3f}" endPos="{p.end_pos_m:.3f}"'
 
 
 def check_within(trains: list[PlannedTrain]) -> None:

@@ -322,6 +322,7 @@ class VCDriver:
                 self.convoy_of[m.id] = ids
             for k in range(1, len(members)):
                 ego, pred = members[k], members[k - 1]
+                ego.shares_platforms = True
                 nominal, sup, d_min = _make_controller(self.name, self.params_spec, pred, ego, step_s, cbf_config)
                 frames = {}
                 for other in members:

@@ -16,8 +16,9 @@ For each direction, stopping pattern, regime and (VC) controller and convoy size
 * ``headway_sim_s`` is the time between the unit leaders passing the critical section in that run;
   ``headway_analytic_s`` is blocking-time theory on the leader's unhindered profile
   (:mod:`vcsumo.blocking_time`: FBS blocks, MB absolute braking distance + 50 m; a VC convoy is one
-  train whose last member passes a point (n−1)·(L + d(v))/v after its leader, d(v) the coupled gap
-  measured as a function of speed, separated from the next convoy by moving block);
+  train whose last member passes each point τ_c(z) after its leader — the convoy's occupation,
+  measured in the run (its coupling, stops and platform sharing) — and the next convoy's leader
+  keeps moving-block distance to that last train: H(y) = t(z) + τ_c(z) − t(y), z = y + D + 50 m + L);
 * ``capacity_trains_per_h`` = 3600·n / headway (every train of a convoy counts);
   ``gain_vs_fbs`` = capacity / FBS capacity in the same direction and stopping pattern (1.0 = same).
 
@@ -151,11 +152,11 @@ def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float
 
 
 def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, regime: str, unit_length_m, step_s: float, s_check: float,
-                     convoy_lag_s=None) -> tuple[float, float, pd.DataFrame | None]:
+                     rear_lag_at=None) -> tuple[float, float, pd.DataFrame | None]:
     """(headway s, critical position m, FBS blocks) of blocking-time theory over [release, s_check].
 
-    ``convoy_lag_s``: for a VC convoy, the time its last train passes a point after its leader, as a
-    function of speed — (n−1)·(L + d(v))/v (:func:`vcsumo.blocking_time.mb_headway_profile`).
+    ``rear_lag_at``: for a VC convoy, the time its last train passes a position after its leader
+    (:func:`vcsumo.blocking_time.mb_headway_profile`).
     """
     rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
     if regime == "fbs":
@@ -163,32 +164,31 @@ def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, st
         sel = blocks[blocks.approach_m <= s_check]
         i = sel.blocking_time_s.idxmax()
         return float(sel.loc[i, "blocking_time_s"]), float(sel.loc[i, "block_start_m"]), blocks
-    prof = mb_headway_profile(run, unit_length_m, rule, SUMO_MB_MARGIN_M, convoy_lag_s=convoy_lag_s)
+    prof = mb_headway_profile(run, unit_length_m, rule, SUMO_MB_MARGIN_M, rear_lag_at=rear_lag_at)
     sel = prof[prof.s_m <= s_check]
     i = sel.headway_s.idxmax()
     return float(sel.loc[i, "headway_s"]), float(sel.loc[i, "s_m"]), None
 
 
-def gap_curve(records: pd.DataFrame, bin_mps: float = 5.0):
-    """The coupled gap as a function of speed, from a run's follower records (90th percentile per
-    speed bin, interpolated; a convoy's length n·L + (n−1)·d(v) follows it)."""
-    rec = records.dropna(subset=["gap_m", "speed_mps"])
-    rec = rec[rec.speed_mps > 1.0]
-    if rec.empty:
-        return lambda v: np.zeros_like(np.asarray(v, dtype=float))
-    bins = (rec.speed_mps // bin_mps).astype(int)
-    g = rec.groupby(bins).gap_m.quantile(0.9)
-    centres = (g.index.to_numpy() + 0.5) * bin_mps
-    values = g.to_numpy()
-    return lambda v: np.interp(np.asarray(v, dtype=float), centres, values)
+def rear_lag(traces: dict, lead: PlannedTrain, last: PlannedTrain, full_length_m: float, dt: float):
+    """The time a convoy's last train passes a position after its leader, from one run's traces
+    (positions in the full-track frame; linear between samples, held at the ends)."""
+    def passage(t: PlannedTrain):
+        s, _ = traces[t.id]
+        s = np.maximum.accumulate(np.asarray(s) + (full_length_m - t.profile.length_m))
+        times = t.depart_s + dt * np.arange(len(s))
+        keep = np.concatenate([[True], np.diff(s) > 1e-6])  # first passage of every position
+        return s[keep], times[keep]
+
+    s_l, t_l = passage(lead)
+    s_r, t_r = passage(last)
+    lo, hi = max(s_l[0], s_r[0]), min(s_l[-1], s_r[-1])
+    grid = np.linspace(lo, hi, 2000)
+    lag = np.interp(grid, s_r, t_r) - np.interp(grid, s_l, t_l)
+    return lambda z: np.interp(np.asarray(z, dtype=float), grid, lag)
 
 
-def convoy_lag(n: int, length_m: float, gap_of_v):
-    """Time between a convoy's leader and its last train passing a point: (n−1)·(L + d(v))/v, s."""
-    return lambda v: (n - 1) * (length_m + gap_of_v(v)) / np.maximum(np.asarray(v, dtype=float), 1.0)
-
-
-def _initial_gap(controller: str | None, stock: RollingStock, v0: float, step_s: float) -> float:
+def _initial_gap(stock: RollingStock, v0: float, step_s: float) -> float:
     """Starting gap inside a convoy: the relative-braking gap at the release speed (guard formula) + 20 m."""
     from vcsumo.vc import guaranteed_decel, strongest_decel
 
@@ -216,15 +216,18 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     dt = vc_step_s if case.regime == "vc" else step_s
     run = leader_run(setup, stock, case, dt)
     s_check = setup.full.length_m - 100.0
-    init_gap = _initial_gap(case.controller, stock, setup.v0, dt) if case.convoy_size > 1 else 0.0
+    init_gap = _initial_gap(stock, setup.v0, dt) if case.convoy_size > 1 else 0.0
     # first guess from theory with the initial gap; the bisection decides
     L_guess = case.convoy_size * stock.length_m + (case.convoy_size - 1) * init_gap
     guess, crit, _ = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", L_guess, dt, s_check)
     probes = [0]
     mps = [MeasuringPoint("end", "main", setup.full.km_at(s_check)[1])]
 
-    def run_at(h: float) -> Probe:
-        units = unit_trains(topo, setup, stock, case, 2, h, init_gap)
+    def run_single(h: float) -> Probe:
+        return run_at(h, n_units=1)
+
+    def run_at(h: float, n_units: int = 2) -> Probe:
+        units = unit_trains(topo, setup, stock, case, n_units, h, init_gap)
         trains = [t for u in units for t in u]
         driver = None
         if case.regime == "vc":
@@ -235,6 +238,10 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         sim = simulate(Scenario(line, net, trains, case.regime, step_length_s=dt, measuring_points=mps, record_period_s=3600.0,
                                 full_outputs=False, trace_speeds=True, driver=driver, seed=seed), out / "probes" / f"h{h:08.3f}")
         pr = Probe(h, sim.passages, {t.id: t.depart_s for t in trains}, sim.summary)
+        pr.units = units  # type: ignore[attr-defined]
+        pr.sim = sim  # type: ignore[attr-defined]
+        if n_units == 1:
+            return pr
         pairs = [(units[1][0].id, units[0][0].id)]
         order = [t.id for t in trains]
         pr.compute_delays(["end"], order, pairs)
@@ -247,21 +254,17 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
             if sv is not None:
                 traces[t.id] = ([x + off for x in sv[0]], sv[1])
         pr.compute_speed_deficits({"end": s_check}, traces, order, start_delays, pairs=pairs)
-        pr.units = units  # type: ignore[attr-defined]
-        pr.sim = sim  # type: ignore[attr-defined]
         if driver is not None:
             pr.vc = driver.summary()  # type: ignore[attr-defined]
             pr.vc_records = pd.DataFrame(driver.records)  # type: ignore[attr-defined]
         return pr
 
-    gap_of_v = None
     if case.convoy_size > 1:
-        # calibration: one run with the units far apart gives the coupled gap as a function of
-        # speed; blocking-time theory with that convoy length brackets the search tightly
-        cal = run_at(3.0 * guess)
-        if hasattr(cal, "vc_records") and len(cal.vc_records):
-            gap_of_v = gap_curve(cal.vc_records)
-            guess, crit, _ = analytic_headway(net, setup, run, stock, "mb", stock.length_m, dt, s_check, convoy_lag(case.convoy_size, stock.length_m, gap_of_v))
+        # calibration: one convoy alone shows how long it takes to pass each point; blocking-time
+        # theory with that occupation brackets the search
+        cal = run_single(guess)
+        guess, crit, _ = analytic_headway(net, setup, run, stock, "mb", stock.length_m, dt, s_check,
+                                          rear_lag(cal.sim.speed_traces, cal.units[0][0], cal.units[0][-1], setup.full.length_m, dt))
     found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=2.0, resolution_s=resolution_s)
     h, pr = found["end"]
     if math.isnan(h):
@@ -274,8 +277,9 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         rec = pr.vc_records
         fast = rec[rec.speed_mps > 0.5 * max(setup.v0, 10.0)]
         gap = float(fast.gap_m.median()) if len(fast) else float(rec.gap_m.median())
-        gap_of_v = gap_curve(rec)
-    lag = convoy_lag(case.convoy_size, stock.length_m, gap_of_v) if gap_of_v is not None else None
+    lag = None
+    if case.convoy_size > 1:
+        lag = rear_lag(pr.sim.speed_traces, units[0][0], units[0][-1], setup.full.length_m, dt)  # type: ignore[attr-defined]
     h_an, crit, blocks = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", stock.length_m, dt, s_check, lag)
     # simulated headway: leaders passing the critical section in the run at the minimum interval
     tr0 = pr.sim.speed_traces  # type: ignore[attr-defined]
