@@ -40,7 +40,8 @@ def test_peak_routes_and_stops(bofi):
     assert trains["FR9501.2"].depart_s - fr.depart_s == pytest.approx(1200.0)
     assert any(e.startswith("san_ruffillo") for e in trains["FA8801"].edges)
     xml = routes_xml(list(trains.values()), topo)
-    assert 'trainStop="FIRI_up"' in xml and "etr1000@tf1.50" in xml and 'carFollowModel="Rail"' in xml
+    plat = topo.platforms["FIRI_up"]
+    assert f'<stop lane="{plat.edge}_0"' in xml and "etr1000@tf1.50" in xml and 'carFollowModel="Rail"' in xml
 
 
 TT = """
