@@ -40,7 +40,7 @@ class Station(StrictModel):
     id: str = Field(description="Short identifier used by timetables, e.g. 'FIRI'", pattern=r"^[A-Za-z][A-Za-z0-9_\-]*$")
     name: str = Field(description="Full station name")
     km: Km = Field(description="Chainage of the platform centre, km")
-    platform_length_m: float = Field(gt=0, le=5000, description="Usable platform length, m")
+    platform_length_m: float = Field(ge=10, le=5000, description="Usable platform length, m (10–5,000)")
     dwell_s: float = Field(default=60.0, ge=0, le=86400, description="Default dwell time of a stopping train, s")
 
 
@@ -174,11 +174,13 @@ def _check_stations(stations: list[Station], name: str, lo: float, hi: float) ->
         half = st.platform_length_m / 2000.0
         if st.km - half < lo - 1e-9 or st.km + half > hi + 1e-9:
             problems.append((f"{name}[{i}].km", f"platform {st.km - half:.3f}–{st.km + half:.3f} km of '{st.id}' lies beyond the section ({lo}–{hi} km)"))
+        elif 0 < min(st.km - half - lo, hi - st.km - half) < 0.01 - 1e-9:
+            problems.append((f"{name}[{i}].km", f"platform {st.km - half:.3f}–{st.km + half:.3f} km of '{st.id}' ends within 10 m of the section end ({lo}–{hi} km); end it there or leave 10 m"))
     order = sorted(range(len(stations)), key=lambda i: stations[i].km)
     for a, b in zip(order, order[1:]):
         sa, sb = stations[a], stations[b]
-        if sb.km - sb.platform_length_m / 2000 < sa.km + sa.platform_length_m / 2000:
-            problems.append((f"{name}[{b}]", f"platform of '{sb.id}' overlaps the platform of '{sa.id}'"))
+        if sb.km - sb.platform_length_m / 2000 < sa.km + sa.platform_length_m / 2000 + 0.01 - 1e-9:
+            problems.append((f"{name}[{b}]", f"platform of '{sb.id}' overlaps the platform of '{sa.id}' or lies within 10 m of it"))
     return problems
 
 
@@ -223,6 +225,8 @@ def check_line(line: LineFile) -> list[tuple[str, str]]:
             (br.leaves_towards == "end" and abs(br.junction_km - hi) < 1e-9) or (br.leaves_towards == "start" and abs(br.junction_km - lo) < 1e-9)
         ):
             p.append((f"{f}.junction_km", f"junction at {br.junction_km} km lies beyond the line ({lo}–{hi} km)"))
+        elif 0 < min(br.junction_km - lo, hi - br.junction_km) < 0.01:
+            p.append((f"{f}.junction_km", f"junction at {br.junction_km} km lies within 10 m of a line end ({lo}–{hi} km); put it at the end or further in"))
         if br.diverging_speed_kmh > br.speed_kmh + 1e-9:
             p.append((f"{f}.diverging_speed_kmh", f"turnout speed {br.diverging_speed_kmh} km/h exceeds the branch line speed {br.speed_kmh} km/h"))
         blen = br.length_m / 1000.0

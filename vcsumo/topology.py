@@ -279,7 +279,9 @@ def _signal_positions(sec: _Section, mandatory: set[float]) -> set[float]:
     return keep
 
 
-def _breakpoints(sec: _Section, extra: set[float]) -> list[float]:
+def _breakpoints(sec: _Section, extra: set[float], keep: frozenset[float] = frozenset()) -> list[float]:
+    """Sorted edge breakpoints of a section; points closer than 1 m merge, but points in ``keep``
+    (junctions, which must be nodes) win over the point they merge with."""
     pts = {sec.c0, sec.c1}
     for lst in (sec.speed_limits, sec.gradients, sec.curves, sec.tunnels):
         for r in lst:
@@ -294,6 +296,8 @@ def _breakpoints(sec: _Section, extra: set[float]) -> list[float]:
     out: list[float] = []
     for p in pts:
         if out and p - out[-1] < 0.001:
+            if p in keep and out[-1] not in keep and len(out) > 1:
+                out[-1] = p
             continue
         out.append(p)
     if out[-1] != _round_km(sec.c1):
@@ -333,7 +337,7 @@ def build_topology(line: Line, block_length_m: float | None = None) -> Topology:
     mandatory_up = {_round_km(st.km + st.platform_length_m / 2000.0) for st in d.stations} | junction_kms
     mandatory_down = {_round_km(st.km - st.platform_length_m / 2000.0) for st in d.stations} | junction_kms
     markers = _signal_positions(main, mandatory_up | mandatory_down)
-    pts = _breakpoints(main, markers | junction_kms)
+    pts = _breakpoints(main, markers | junction_kms, frozenset(junction_kms | mandatory_up | mandatory_down))
     zgeo = _elevations(main, pts, d.start_elevation_m)
     cint = _curve_integral(main, pts)
     if single_main and d.curves:
@@ -483,7 +487,7 @@ def _add_branch(topo: Topology, line: Line, br: Branch, junction_nodes: dict, bl
     mand_away = {_round_km(st.km + st.platform_length_m / 2000.0) for st in br.stations}
     mand_towards = {_round_km(st.km - st.platform_length_m / 2000.0) for st in br.stations}
     markers = _signal_positions(sec, mand_away | mand_towards)
-    pts = _breakpoints(sec, markers)
+    pts = _breakpoints(sec, markers, frozenset(mand_away | mand_towards))
     zrel = _elevations(sec, pts, 0.0)
     cint = _curve_integral(sec, pts)
     jkm = _round_km(br.junction_km)
