@@ -216,10 +216,13 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step for FBS/MB, s")
 @click.option("--vc-step-length", type=float, default=0.2, show_default=True, help="SUMO and controller step for VC, s")
+@click.option("--fixed-time-s", type=float, default=0.0, show_default=True,
+              help="ETCS fixed times (route setting + MA transmission + reaction), s: added in the simulation and in the analytic headway; 10-20 s is typical")
+@click.option("--workers", type=int, default=None, help="Parallel processes (default: number of CPUs; 1 = in this process)")
 @click.option("--seed", type=int, default=42, show_default=True)
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_sizes: str, directions: str, patterns: str | None, block_length_m: float | None,
-                 step_length: float, vc_step_length: float, seed: int, out: Path | None) -> None:
+                 step_length: float, vc_step_length: float, fixed_time_s: float, workers: int | None, seed: int, out: Path | None) -> None:
     """Line capacity under FBS, MB and VC (each controller, convoy sizes), per direction and stopping pattern."""
     from vcsumo.line import load_line
     from vcsumo.network import build_network
@@ -245,17 +248,26 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
         pats = tuple(p.strip() for p in patterns.split(",") if p.strip())
         if any(p not in PATTERNS for p in pats):
             raise VcsumoError(f"--patterns: '{patterns}' (choose from {', '.join(PATTERNS)})")
+    if fixed_time_s < 0:
+        raise VcsumoError(f"--fixed-time-s: {fixed_time_s} s is negative")
+    import os
+
+    n_workers = workers if workers is not None else (os.cpu_count() or 1)
+    if n_workers < 1:
+        raise VcsumoError(f"--workers: {workers} (at least 1)")
     net = build_network(line, block_length_m)
     out = out or default_out("capacity", line.name)
     with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params={"train": name, "controllers": ctrls, "convoy_sizes": sizes, "directions": dirs,
-                       "patterns": pats, "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length}) as rf:
+                       "patterns": pats, "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length,
+                       "fixed_time_s": fixed_time_s, "workers": n_workers}) as rf:
         with _progress() as prog:
             task = prog.add_task(f"capacity {line.name}", total=1.0)
 
             def upd(k: int, n: int, desc: str) -> None:
                 prog.update(task, completed=k / n if n else 1.0, description=f"capacity {line.name}: {desc}")
 
-            df = run_capacity_study(line, net, stock, rf.path, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd)
+            df = run_capacity_study(line, net, stock, rf.path, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd,
+                                    fixed_time_s=fixed_time_s, workers=n_workers)
     _print_table(df, f"capacity — {line.name} ({name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
                  "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"])
     out_console.print(f"wrote {out / 'capacity.csv'}")
@@ -336,6 +348,15 @@ def _register_batch() -> None:
 
 
 _register_batch()
+
+
+def _register_junction() -> None:
+    from vcsumo.cli_junction import junction_cmd
+
+    study.add_command(junction_cmd)
+
+
+_register_junction()
 
 
 def main(argv: list[str] | None = None) -> int:

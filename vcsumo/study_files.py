@@ -34,6 +34,8 @@ class CapacityStudy(_Common):
     block_length_m: float | None = Field(default=None, gt=0)
     step_length_s: float = Field(default=0.5, gt=0, le=2)
     vc_step_length_s: float = Field(default=0.2, gt=0, le=2)
+    fixed_time_s: float = Field(default=0.0, ge=0, le=120, description="ETCS fixed times (route setting + MA transmission + reaction), s")
+    workers: int | None = Field(default=None, ge=1, description="Parallel processes (default: number of CPUs)")
     seed: int = 42
 
 
@@ -60,8 +62,19 @@ class BatchStudy(_Common):
 
 class JunctionStudy(_Common):
     study: Literal["junction"]
+    train: str | None = None
     controllers: list[str] = Field(default_factory=lambda: ["cbc", "cbf-cbc"])
-    junction: str | None = None
+    junction: str | None = Field(default=None, description="Branch id(s), comma-separated, or 'all' (default: chosen from the line file)")
+    first: Literal["main", "branch", "both"] = "both"
+    junction_signal: Literal["sumo", "braking-curve", "both"] = "braking-curve"
+    directions: list[Literal["up", "down"]] = Field(default_factory=lambda: ["up", "down"])
+    offsets_s: list[float] | None = None
+    approach_m: float = Field(default=12000.0, gt=0)
+    window_m: float = Field(default=5000.0, gt=0)
+    block_length_m: float | None = Field(default=None, gt=0)
+    step_length_s: float = Field(default=0.5, gt=0, le=2)
+    vc_step_length_s: float = Field(default=0.2, gt=0, le=2)
+    seed: int = 42
 
 
 StudyFile = Annotated[Union[CapacityStudy, HeadwayStudy, BatchStudy, JunctionStudy], Field(discriminator="study")]
@@ -106,6 +119,10 @@ def study_arguments(study, path: Path, out: Path | None) -> list[str]:
             args += ["--patterns", ",".join(study.patterns)]
         if study.block_length_m:
             args += ["--block-length-m", str(study.block_length_m)]
+        if study.fixed_time_s:
+            args += ["--fixed-time-s", str(study.fixed_time_s)]
+        if study.workers:
+            args += ["--workers", str(study.workers)]
     elif isinstance(study, HeadwayStudy):
         args = ["study", "headway"] + args + ["--regime", study.regime, "--step-length", str(study.step_length_s),
                                               "--trains-per-run", str(study.trains_per_run)]
@@ -126,9 +143,19 @@ def study_arguments(study, path: Path, out: Path | None) -> list[str]:
         if study.scheduler:
             args += ["--scheduler", study.scheduler]
     else:
-        args = ["study", "junction"] + args + ["--controllers", ",".join(study.controllers)]
+        args = ["study", "junction"] + args + ["--controllers", ",".join(study.controllers), "--first", study.first,
+                                               "--junction-signal", study.junction_signal, "--directions", ",".join(study.directions),
+                                               "--approach-m", str(study.approach_m), "--window-m", str(study.window_m),
+                                               "--step-length", str(study.step_length_s), "--vc-step-length", str(study.vc_step_length_s),
+                                               "--seed", str(study.seed)]
+        if study.train:
+            args += ["--train", study.train]
         if study.junction:
             args += ["--junction", study.junction]
+        if study.offsets_s:
+            args += ["--offsets", ",".join(f"{o:g}" for o in study.offsets_s)]
+        if study.block_length_m:
+            args += ["--block-length-m", str(study.block_length_m)]
     if dest is not None:
         args += ["--out", str(dest)]
     return args
