@@ -86,3 +86,43 @@ def test_shipped_study_files_validate(root):
         st = load_study(f)
         args = study_arguments(st, f, None)
         assert "--line" in args
+
+
+def test_fixed_times_lengthen_every_headway_by_their_sum(felez_capacity, tmp_path, line_factory, network_factory):
+    """ETCS fixed times (route setting + MA transmission + reaction) delay every release of track to
+    the follower: blocking-time theory adds them once; the simulated SUMO trains, which see an
+    authority that old (vcsumo.fixed_times), lose the same time.  Runs in two worker processes."""
+    base, _ = felez_capacity
+    T = 8.0
+    df = run_capacity_study(line_factory("felez_test"), network_factory("felez_test"), load_rolling_stock("felez2019"), tmp_path, [], [1],
+                            directions=("up",), patterns=("non-stop",), fixed_time_s=T, workers=2)
+    assert (df.error.fillna("") == "").all() and (df.fixed_time_s == T).all()
+    for regime in ("fbs", "mb"):
+        a = base[(base.regime == regime) & (base.stopping_pattern == "non-stop")].iloc[0]
+        b = df[df.regime == regime].iloc[0]
+        assert b.headway_analytic_s - a.headway_analytic_s == pytest.approx(T, abs=0.05)
+        assert b.headway_sim_s - a.headway_sim_s == pytest.approx(T, abs=1.0), regime
+        assert b.gap_violations == 0 and b.collisions == 0
+
+
+def test_a_failing_case_becomes_a_row_and_the_study_goes_on(tmp_path, line_factory, network_factory, monkeypatch):
+    from vcsumo.errors import VcsumoError
+    from vcsumo.studies import capacity
+
+    real = capacity.run_case
+
+    def run_case(line, net, stock, setup, case, *a, **k):
+        if case.regime == "vc":
+            raise VcsumoError("no sustainable headway found (test)")
+        return real(line, net, stock, setup, case, *a, **k)
+
+    monkeypatch.setattr(capacity, "run_case", run_case)
+    df = capacity.run_capacity_study(line_factory("felez_test"), network_factory("felez_test"), load_rolling_stock("felez2019"), tmp_path, ["cbc"], [1, 2],
+                                     directions=("up",), patterns=("non-stop",), workers=1)
+    assert pd.read_csv(tmp_path / "capacity.csv").shape[0] == 4
+    ok = df[df.regime != "vc"]
+    assert (ok.error.fillna("") == "").all() and (ok.capacity_trains_per_h > 0).all()
+    failed = df[(df.regime == "vc") & (df.convoy_size == 2)].iloc[0]
+    assert "no sustainable headway" in failed.error and pd.isna(failed.capacity_trains_per_h)
+    # a convoy of one is moving block: it still has MB's result
+    assert df[(df.regime == "vc") & (df.convoy_size == 1)].capacity_trains_per_h.iloc[0] == ok[ok.regime == "mb"].capacity_trains_per_h.iloc[0]

@@ -108,6 +108,9 @@ class Scenario:
     """Below this follower speed, FBS/MB allow on-sight movement (SUMO's MB margin applies only from
     30 km/h; trains hover at that boundary, hence +0.5 m/s): gaps there are reported but not counted
     as violations.  Trains driven by a vcsumo driver are always held to their ``safe_gap_m``."""
+    fixed_time_s: float = 0.0
+    """ETCS-style fixed times (route setting + MA transmission + reaction) the trains SUMO drives
+    see on top of SUMO's signalling, s (:mod:`vcsumo.fixed_times`)."""
     full_outputs: bool = True
     """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
     trace_speeds: bool = False
@@ -184,10 +187,22 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     violation_rows: list[tuple] = []
     next_record = begin
     dt = scn.step_length_s
+    authority = None
+    if scn.fixed_time_s > 0:
+        from vcsumo.fixed_times import DelayedAuthority, route_signal_positions
+
+        authority = DelayedAuthority(
+            scn.fixed_time_s, scn.regime, dt, {t.id: t.stock.service_brake_decel_mps2 for t in scn.trains},
+            {t.id: route_signal_positions(topo, t.profile.edges, t.profile.starts_m, t.profile.lengths_m) for t in scn.trains} if scn.regime == "fbs" else None,
+        )
+    capped: set[str] = set()
+    timing = {"sumo_s": 0.0, "controller_s": 0.0}
     with SumoBackend(args, error_log=out / "sumo_errors.log") as sim:
         t = sim.time
         while True:
+            t0 = time.perf_counter()
             t = sim.step()
+            timing["sumo_s"] += time.perf_counter() - t0
             for vid in sim.departed():
                 tr = _Track(plan=plans[vid], departed_at=t)
                 for mp in scn.measuring_points:
@@ -203,9 +218,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     state[vid].arrived_at = t
             active = [v for v in sim.train_ids() if v in state]
             snap_trains: dict[str, TrainState] = {}
+            obs = {vid: sim.observe(vid) for vid in active}
+            others = [(vid, o.edge, o.lane_pos_m, plans[vid].stock.length_m) for vid, o in obs.items()]
             for vid in active:
                 tr = state[vid]
-                ob = sim.observe(vid)
+                ob = obs[vid]
                 prof = tr.plan.profile
                 prev_s = tr.s
                 if not ob.edge.startswith(":") and 0 <= ob.route_index < len(prof.edges) and prof.edges[ob.route_index] == ob.edge:
@@ -227,6 +244,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                             frac = (s_mp - prev_s) / max(tr.s - prev_s, 1e-9)
                             pass_rows.append((label, vid, t - dt + frac * dt, ob.speed_mps))
                 lead = sim.leader(vid, scn.lookahead_m)
+                if lead is None and len(others) > 1:
+                    lead = sim.route_leader(vid, others, scn.lookahead_m)
                 gap = lead[1] if lead else math.inf
                 tr.min_gap = min(tr.min_gap, gap)
                 counts = tr.controlled or ob.speed_mps > scn.on_sight_speed_mps
@@ -264,12 +283,26 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     traj_rows.append((ts.time_s, ts.id, ts.section, round(ts.km, 6), round(ts.s_m, 3), ts.speed_mps, ts.accel_mps2,
                                       None if math.isinf(ts.gap_m) else round(ts.gap_m, 3), ts.leader, ts.edge))
                 next_record += scn.record_period_s
+            if authority is not None:
+                caps = authority.caps(t, snap_trains, skip={v for v, tr in state.items() if tr.controlled})
+                for vid, ts in snap_trains.items():
+                    cap = caps.get(vid)
+                    if cap is not None and cap < ts.speed_mps + 2.0:
+                        sim.set_speed(vid, cap)
+                        capped.add(vid)
+                        authority.caps_applied += 1
+                    elif vid in capped:
+                        sim.release(vid)
+                        capped.discard(vid)
             if scn.driver is not None:
+                t0 = time.perf_counter()
                 commands = scn.driver.make_step(Snapshot(t, dt, snap_trains))
+                timing["controller_s"] += time.perf_counter() - t0
                 for vid, v_cmd in commands.items():
                     tr = state.get(vid)
                     if tr is None:
                         continue
+                    capped.discard(vid)
                     if not tr.controlled:
                         sim.set_speed_mode(vid, SPEED_MODE_VC_FOLLOWER)
                         tr.controlled = True
@@ -283,11 +316,15 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             if sim.min_expected() == 0 or t >= end - 1e-9:
                 break
         sim_end = t
-    wall = time.perf_counter() - t_wall
-    result = _collect(scn, out, state, traj_rows, pass_rows, collisions, teleports, sim_end, wall)
-    result.speed_traces = traces
+    t_io = time.perf_counter()
     pd.DataFrame(violation_rows, columns=["time_s", "train", "leader", "section", "km", "speed_mps", "gap_m", "safe_gap_m", "driven_by_vcsumo"]).to_csv(out / "violations.csv", index=False)
     pd.DataFrame(collisions, columns=["time_s", "collider", "victim"]).to_csv(out / "collisions.csv", index=False)
+    extra = {
+        "fixed_time_s": scn.fixed_time_s, "authority_caps": authority.caps_applied if authority is not None else 0,
+        "sumo_step_time_s": round(timing["sumo_s"], 3), "controller_time_s": round(timing["controller_s"], 3),
+    }
+    result = _collect(scn, out, state, traj_rows, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
+    result.speed_traces = traces
     return result
 
 
@@ -321,7 +358,9 @@ def _parse_xml_rows(path: Path, tag: str) -> list[dict]:
         raise SumoError(f"{path}: SUMO output is not valid XML ({exc})") from None
 
 
-def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass_rows, collisions, teleports, sim_end: float, wall: float) -> SimulationResult:
+def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass_rows, collisions, teleports, sim_end: float, wall: float,
+             extra: dict | None = None) -> SimulationResult:
+    t_io = time.perf_counter()
     traj = pd.DataFrame(traj_rows, columns=["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"])
     passages = pd.DataFrame(pass_rows, columns=["measuring_point", "train", "time_s", "speed_mps"])
     # stop events from SUMO's stop output
@@ -377,12 +416,15 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass
         "min_gap_m": min(gaps) if gaps else None, "min_safe_gap_m": scn.min_safe_gap_m,
         "gap_violations": int(trains_df["gap_violations"].sum()), "collisions": len(collisions),
         "emergency_brakes": int(trains_df["emergency_brakes"].sum()), "teleports": len(teleports),
-        "simulated_until_s": sim_end, "wall_time_s": round(wall, 3),
+        "simulated_until_s": sim_end, **(extra or {}),
     }
     if scn.full_outputs:
         traj.to_csv(out / "trajectories.csv", index=False)
     passages.to_csv(out / "passages.csv", index=False)
     stops.to_csv(out / "stop_events.csv", index=False)
     trains_df.to_csv(out / "summary.csv", index=False)
+    io = time.perf_counter() - t_io
+    summary["io_time_s"] = round(io, 3)
+    summary["wall_time_s"] = round(wall + io, 3)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return SimulationResult(traj, passages, stops, trains_df, summary)

@@ -127,6 +127,25 @@ class SumoBackend:
         lid, gap = res
         return lid, gap + self._ls.vehicle.getMinGap(vid)
 
+    def route_leader(self, vid: str, others: list[tuple[str, str, float, float]], lookahead_m: float) -> tuple[str, float] | None:
+        """The nearest train ahead on ``vid``'s remaining route by driving distance: (id, gap
+        front-to-rear in m) or None.  ``others``: (id, edge, front position on the edge, length).
+
+        SUMO's getLeader only searches as far as its lane look-ahead reaches, which on long rail
+        routes can stop kilometres short of the train ahead; this is the fallback.
+        """
+        best: tuple[str, float] | None = None
+        for oid, edge, pos, length in others:
+            if oid == vid or edge.startswith(":"):
+                continue
+            d = self.driving_distance(vid, edge, pos)
+            if d is None or d <= 0.0:
+                continue
+            gap = d - length
+            if gap <= lookahead_m and (best is None or gap < best[1]):
+                best = (oid, gap)
+        return best
+
     def driving_distance(self, vid: str, edge: str, pos: float) -> float | None:
         d = self._ls.vehicle.getDrivingDistance(vid, edge, pos)
         return None if d <= INVALID_DISTANCE + 1 or d < -1e8 else d

@@ -61,8 +61,22 @@ PATTERNS = ("non-stop", "all-stops")
 CAPACITY_COLUMNS = [
     "line", "direction", "regime", "controller", "convoy_size", "stopping_pattern", "critical_section_km", "headway_sim_s",
     "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions",
-    "train", "release_interval_s", "deviation_pct", "block_length_m", "emergency_brakes", "guard_interventions", "simulations", "wall_time_s",
+    "train", "release_interval_s", "deviation_pct", "block_length_m", "fixed_time_s", "emergency_brakes", "guard_interventions", "simulations",
+    "wall_time_s", "sumo_time_s", "controller_time_s", "io_time_s", "error",
 ]
+
+
+SPEED_TOL_ABS_MPS = 0.1
+"""A unit counts as hindered where its leader runs slower than the first unit's leader at the same
+position by more than max(0.1 m/s, 0.5 %); SUMO is deterministic, so identical unhindered trains
+agree far better than that (a looser 0.3 m/s let MB followers creep towards a train dwelling at a
+station and hid up to 12 % of the headway)."""
+SPEED_TOL_REL = 0.005
+SPEED_TOL_MIN_MPS = 1.0
+"""Below 1 m/s (the last metres of a stop) speeds are not compared, only lost time."""
+SEARCH_BRACKET = 0.03
+"""Half-width of the first bisection bracket around the analytic (VC: calibrated) headway; the
+bracket widens until it holds the answer, so this only saves simulations."""
 
 
 @dataclass(frozen=True)
@@ -152,22 +166,24 @@ def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float
 
 
 def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, regime: str, unit_length_m, step_s: float, s_check: float,
-                     rear_lag_at=None) -> tuple[float, float, pd.DataFrame | None]:
+                     rear_lag_at=None, fixed_time_s: float = 0.0) -> tuple[float, float, pd.DataFrame | None]:
     """(headway s, critical position m, FBS blocks) of blocking-time theory over [release, s_check].
 
     ``rear_lag_at``: for a VC convoy, the time its last train passes a position after its leader
-    (:func:`vcsumo.blocking_time.mb_headway_profile`).
+    (:func:`vcsumo.blocking_time.mb_headway_profile`).  ``fixed_time_s`` (route setting, MA
+    transmission, reaction; :mod:`vcsumo.fixed_times`) lengthens every block occupation and so
+    every headway by the same amount.
     """
     rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
     if regime == "fbs":
         blocks = fbs_blocking_times(run, signal_positions(net, setup.track_edges, setup.full), setup.full.length_m, float(unit_length_m), rule)
         sel = blocks[blocks.approach_m <= s_check]
         i = sel.blocking_time_s.idxmax()
-        return float(sel.loc[i, "blocking_time_s"]), float(sel.loc[i, "block_start_m"]), blocks
+        return float(sel.loc[i, "blocking_time_s"]) + fixed_time_s, float(sel.loc[i, "block_start_m"]), blocks
     prof = mb_headway_profile(run, unit_length_m, rule, SUMO_MB_MARGIN_M, rear_lag_at=rear_lag_at)
     sel = prof[prof.s_m <= s_check]
     i = sel.headway_s.idxmax()
-    return float(sel.loc[i, "headway_s"]), float(sel.loc[i, "s_m"]), None
+    return float(sel.loc[i, "headway_s"]) + fixed_time_s, float(sel.loc[i, "s_m"]), None
 
 
 def rear_lag(traces: dict, lead: PlannedTrain, last: PlannedTrain, full_length_m: float, dt: float):
@@ -209,7 +225,7 @@ class CaseResult:
 
 
 def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSetup, case: Case, out: Path, step_s: float, vc_step_s: float,
-             resolution_s: float = 0.5, seed: int = 42) -> CaseResult:
+             resolution_s: float = 0.5, seed: int = 42, fixed_time_s: float = 0.0) -> CaseResult:
     """Bisection on the release interval for one case."""
     t_wall = time.perf_counter()
     topo = net.topology
@@ -219,8 +235,9 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     init_gap = _initial_gap(stock, setup.v0, dt) if case.convoy_size > 1 else 0.0
     # first guess from theory with the initial gap; the bisection decides
     L_guess = case.convoy_size * stock.length_m + (case.convoy_size - 1) * init_gap
-    guess, crit, _ = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", L_guess, dt, s_check)
+    guess, crit, _ = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", L_guess, dt, s_check, fixed_time_s=fixed_time_s)
     probes = [0]
+    timing = {"sumo_step_time_s": 0.0, "controller_time_s": 0.0, "io_time_s": 0.0}
     mps = [MeasuringPoint("end", "main", setup.full.km_at(s_check)[1])]
 
     def run_single(h: float) -> Probe:
@@ -236,7 +253,9 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
             driver = VCDriver(units, case.controller, dt, seed, load_channel(None))
         probes[0] += 1
         sim = simulate(Scenario(line, net, trains, case.regime, step_length_s=dt, measuring_points=mps, record_period_s=3600.0,
-                                full_outputs=False, trace_speeds=True, driver=driver, seed=seed), out / "probes" / f"h{h:08.3f}")
+                                full_outputs=False, trace_speeds=True, driver=driver, seed=seed, fixed_time_s=fixed_time_s), out / "probes" / f"h{h:08.3f}")
+        for k in timing:
+            timing[k] += sim.summary.get(k, 0.0)
         pr = Probe(h, sim.passages, {t.id: t.depart_s for t in trains}, sim.summary)
         pr.units = units  # type: ignore[attr-defined]
         pr.sim = sim  # type: ignore[attr-defined]
@@ -253,7 +272,8 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
             sv = sim.speed_traces.get(t.id)
             if sv is not None:
                 traces[t.id] = ([x + off for x in sv[0]], sv[1])
-        pr.compute_speed_deficits({"end": s_check}, traces, order, start_delays, pairs=pairs)
+        pr.compute_speed_deficits({"end": s_check}, traces, order, start_delays, rel_tol=SPEED_TOL_REL, abs_tol_mps=SPEED_TOL_ABS_MPS, pairs=pairs,
+                                   min_speed_mps=SPEED_TOL_MIN_MPS)
         if driver is not None:
             pr.vc = driver.summary()  # type: ignore[attr-defined]
             pr.vc_records = pd.DataFrame(driver.records)  # type: ignore[attr-defined]
@@ -264,8 +284,8 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         # theory with that occupation brackets the search
         cal = run_single(guess)
         guess, crit, _ = analytic_headway(net, setup, run, stock, "mb", stock.length_m, dt, s_check,
-                                          rear_lag(cal.sim.speed_traces, cal.units[0][0], cal.units[0][-1], setup.full.length_m, dt))
-    found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=2.0, resolution_s=resolution_s)
+                                          rear_lag(cal.sim.speed_traces, cal.units[0][0], cal.units[0][-1], setup.full.length_m, dt), fixed_time_s)
+    found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=2.0, resolution_s=resolution_s, bracket=SEARCH_BRACKET)
     h, pr = found["end"]
     if math.isnan(h):
         raise VcsumoError(f"no sustainable headway found for {case} (trains hindered at every interval tried)")
@@ -280,7 +300,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     lag = None
     if case.convoy_size > 1:
         lag = rear_lag(pr.sim.speed_traces, units[0][0], units[0][-1], setup.full.length_m, dt)  # type: ignore[attr-defined]
-    h_an, crit, blocks = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", stock.length_m, dt, s_check, lag)
+    h_an, crit, blocks = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", stock.length_m, dt, s_check, lag, fixed_time_s)
     # simulated headway: leaders passing the critical section in the run at the minimum interval
     tr0 = pr.sim.speed_traces  # type: ignore[attr-defined]
     h_sim = h
@@ -304,9 +324,11 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         "capacity_trains_per_h": round(3600.0 * case.convoy_size / h_sim, 2), "gain_vs_fbs": math.nan,
         "min_gap_m": summ["min_gap_m"], "gap_violations": summ["gap_violations"], "collisions": summ["collisions"], "train": stock.name,
         "release_interval_s": round(h, 2), "deviation_pct": round(100.0 * (h_sim - h_an) / h_an, 2),
-        "block_length_m": net.topology.block_length_m, "emergency_brakes": summ["emergency_brakes"],
+        "block_length_m": net.topology.block_length_m, "fixed_time_s": fixed_time_s, "emergency_brakes": summ["emergency_brakes"],
         "guard_interventions": getattr(pr, "vc", {}).get("guard_interventions", 0) if hasattr(pr, "vc") else 0,
         "simulations": probes[0], "wall_time_s": round(time.perf_counter() - t_wall, 1),
+        "sumo_time_s": round(timing["sumo_step_time_s"], 1), "controller_time_s": round(timing["controller_time_s"], 1),
+        "io_time_s": round(timing["io_time_s"], 1), "error": "",
     }
     _prune(out / "probes", f"h{h:08.3f}")
     return CaseResult(row, pr, units, run, blocks, h)
@@ -333,12 +355,51 @@ def cases_for(directions, patterns, controllers, sizes) -> list[Case]:
     return out
 
 
+def _case_dir(out: Path, case: Case) -> Path:
+    return out / "runs" / f"{case.direction}_{case.pattern}_{case.regime}_{case.controller or 'sumo'}_{case.convoy_size}".replace(":", "-")
+
+
+def _case_task(args: tuple) -> tuple[Case, CaseResult | None, str]:
+    """One case, in a worker process or in this one: (case, result, error message)."""
+    line, net, stock, setup, case, out, step_s, vc_step_s, seed, fixed_time_s, keep_example = args
+    try:
+        res = run_case(line, net, stock, setup, case, _case_dir(out, case), step_s, vc_step_s, seed=seed,
+                       resolution_s=1.0 if case.regime == "vc" else 0.5, fixed_time_s=fixed_time_s)
+    except VcsumoError as exc:
+        return case, None, str(exc)
+    except Exception as exc:  # a failed case becomes a row with its error; the study goes on
+        return case, None, f"{type(exc).__name__}: {exc}"
+    if not keep_example:  # only example cases travel back with their traces (time-distance plot)
+        res = replace(res, probe=None, run=res.run.iloc[:0], blocks=None)
+    return case, res, ""
+
+
+def _silence_worker(log_path: str) -> None:
+    import os
+
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+
+def _failed_row(line: Line, stock: RollingStock, net: BuiltNetwork, case: Case, error: str, fixed_time_s: float) -> dict:
+    row = {c: math.nan for c in CAPACITY_COLUMNS}
+    row.update(line=line.name, direction=case.direction, regime=case.regime, controller=case.controller or "", convoy_size=case.convoy_size,
+               stopping_pattern=case.pattern, train=stock.name, block_length_m=net.topology.block_length_m, fixed_time_s=fixed_time_s, error=error)
+    return row
+
+
 def run_capacity_study(
     line: Line, net: BuiltNetwork, stock: RollingStock, out: Path, controllers: list[str], convoy_sizes: list[int],
     directions: tuple[str, ...] = ("up", "down"), patterns: tuple[str, ...] | None = None, step_s: float = 0.5, vc_step_s: float = 0.2,
-    seed: int = 42, progress: Callable[[int, int, str], None] | None = None,
+    seed: int = 42, progress: Callable[[int, int, str], None] | None = None, fixed_time_s: float = 0.0, workers: int = 1,
 ) -> pd.DataFrame:
-    """Every case; writes ``capacity.csv``, ``capacity.png`` and ``time_distance.png`` into ``out``."""
+    """Every case; writes ``capacity.csv``, ``capacity.png`` and ``time_distance.png`` into ``out``.
+
+    ``workers`` > 1 runs cases in that many spawned processes (each with its own SUMO); a case that
+    fails becomes a row with its ``error`` and the study goes on.
+    """
     from vcsumo.vc import parse_controller
 
     for c in controllers:
@@ -346,42 +407,64 @@ def run_capacity_study(
     for n in convoy_sizes:
         if not 1 <= n <= 8:
             raise InputError(None, "--convoy-sizes", f"convoy size {n} is outside 1-8")
+    if fixed_time_s < 0:
+        raise InputError(None, "--fixed-time-s", f"fixed time {fixed_time_s} s is negative")
     setups = {d: route_setup(line, net, stock, d, step_s) for d in directions}
     if patterns is None:
         patterns = tuple(p for p in PATTERNS if p == "non-stop" or any(setups[d].stops_full for d in directions))
     cases = cases_for(directions, patterns, controllers, convoy_sizes)
-    rows: list[dict] = []
-    examples: dict[str, CaseResult] = {}
-    mb_rows: dict[tuple, dict] = {}
-    for k, case in enumerate(cases):
+    # VC with one train is moving block: its rows repeat MB's
+    todo = [c for c in cases if not (c.regime == "vc" and c.convoy_size == 1)]
+    example_of = {}
+    for c in todo:  # the time-distance plot shows the first direction and pattern, the largest convoy
+        if c.direction == directions[0] and c.pattern == patterns[0]:
+            if c.regime not in example_of or c.convoy_size > example_of[c.regime].convoy_size:
+                example_of[c.regime] = c
+    examples_wanted = set(example_of.values())
+    # longest first: VC convoys (largest first), then FBS/MB
+    todo.sort(key=lambda c: (c.regime != "vc", -c.convoy_size))
+    tasks = [(line, net, stock, setups[c.direction], c, out, step_s, vc_step_s, seed, fixed_time_s, c in examples_wanted) for c in todo]
+    results: dict[Case, tuple[CaseResult | None, str]] = {}
+
+    def done(case: Case, res: CaseResult | None, err: str) -> None:
+        results[case] = (res, err)
         if progress:
-            progress(k, len(cases), f"{case.direction} {case.pattern} {case.regime} {case.controller or ''} n={case.convoy_size}")
-        if case.regime == "vc" and case.convoy_size == 1:
-            base = mb_rows.get((case.direction, case.pattern))
-            if base is not None:
-                r = dict(base, regime="vc", controller=case.controller, convoy_size=1)
-                rows.append(r)
-                continue
-        sub = out / "runs" / f"{case.direction}_{case.pattern}_{case.regime}_{case.controller or 'sumo'}_{case.convoy_size}".replace(":", "-")
-        res = run_case(line, net, stock, setups[case.direction], case, sub, step_s, vc_step_s, seed=seed,
-                       resolution_s=1.0 if case.regime == "vc" else 0.5)
-        rows.append(res.row)
-        if case.regime == "mb":
-            mb_rows[(case.direction, case.pattern)] = res.row
-        key = case.regime
-        if key not in examples or (case.regime == "vc" and case.convoy_size > examples[key].units[0].__len__()):
-            if case.direction == directions[0] and case.pattern == patterns[0]:
-                examples[key] = res
+            progress(len(results), len(todo), f"{case.direction} {case.pattern} {case.regime} {case.controller or ''} n={case.convoy_size}" + (" FAILED" if err else ""))
+
     if progress:
-        progress(len(cases), len(cases), "done")
+        progress(0, len(todo), f"{len(todo)} cases")
+    if workers > 1 and len(tasks) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        out.mkdir(parents=True, exist_ok=True)
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=_silence_worker,
+                                 initargs=(str(out / "workers.log"),)) as pool:
+            futs = [pool.submit(_case_task, t) for t in tasks]
+            for f in as_completed(futs):
+                done(*f.result())
+    else:
+        for t in tasks:
+            done(*_case_task(t))
+    rows: list[dict] = []
+    for case in cases:
+        if case.regime == "vc" and case.convoy_size == 1:
+            base, err = results.get(Case(case.direction, "mb", None, 1, case.pattern), (None, "no MB result"))
+            rows.append(dict(base.row, regime="vc", controller=case.controller, convoy_size=1) if base is not None
+                        else _failed_row(line, stock, net, case, err, fixed_time_s))
+            continue
+        res, err = results[case]
+        rows.append(res.row if res is not None else _failed_row(line, stock, net, case, err, fixed_time_s))
+    examples = {reg: results[c][0] for reg, c in example_of.items() if results[c][0] is not None}
     df = pd.DataFrame(rows, columns=CAPACITY_COLUMNS)
     for (d, pat), g in df.groupby(["direction", "stopping_pattern"]):
-        fbs = g[g.regime == "fbs"].capacity_trains_per_h
+        fbs = g[g.regime == "fbs"].capacity_trains_per_h.dropna()
         if len(fbs):
             df.loc[g.index, "gain_vs_fbs"] = (g.capacity_trains_per_h / float(fbs.iloc[0])).round(3)
     df.to_csv(out / "capacity.csv", index=False)
     from vcsumo.plots import plot_capacity, plot_time_distance_stairs
 
-    plot_capacity(df, out / "capacity.png")
+    plot_capacity(df[df.error.fillna("") == ""], out / "capacity.png")
     plot_time_distance_stairs(examples, setups, out / "time_distance.png", line.name)
     return df

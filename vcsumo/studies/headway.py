@@ -66,14 +66,9 @@ class HeadwayCase:
 
 def signal_positions(net: BuiltNetwork, edges: list[str], profile: RouteProfile) -> list[float]:
     """Route positions (m) of the rail signals along a route."""
-    topo = net.topology
-    signals = topo.signal_nodes()
-    out = []
-    for i, eid in enumerate(edges):
-        node = topo.nodes[topo.edges[eid].to_node]
-        if node.id in signals and i < len(edges) - 1:
-            out.append(float(profile.starts_m[i] + profile.lengths_m[i]))
-    return out
+    from vcsumo.fixed_times import route_signal_positions
+
+    return route_signal_positions(net.topology, edges, profile.starts_m, profile.lengths_m)
 
 
 def measuring_points(line: Line, points_km: list[float] | None) -> list[float]:

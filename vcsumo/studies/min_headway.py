@@ -35,8 +35,12 @@ class Probe:
     speed_deficit: dict[str, float] = field(default_factory=dict)
     """Largest speed deficit (unhindered − actual) before each measuring point, m/s."""
 
-    def compute_speed_deficits(self, points_m: dict[str, float], traces: dict[str, tuple[list[float], list[float]]], order: list[str], start_delays: dict[str, float], rel_tol: float = 0.005, abs_tol_mps: float = 0.3, pairs: list[tuple[str, str]] | None = None) -> None:
+    def compute_speed_deficits(self, points_m: dict[str, float], traces: dict[str, tuple[list[float], list[float]]], order: list[str], start_delays: dict[str, float], rel_tol: float = 0.005, abs_tol_mps: float = 0.3, pairs: list[tuple[str, str]] | None = None, min_speed_mps: float = 0.0) -> None:
         """Speed deficit before each point, normalised so that a value above 0 means hindered.
+
+        Positions where the reference runs slower than ``min_speed_mps`` (the last metres of a
+        stop, the first of a start, where speed against position is too steep to compare between
+        two sampled runs) are left to the lost-time check.
 
         Each train is compared with its reference (by default the first train of ``order``; for
         convoys ``pairs`` gives (train, same member of the first convoy)).
@@ -59,6 +63,9 @@ class Probe:
                     break
                 vref = np.interp(fs[sel], rs, rv)
                 excess = (vref - fv[sel]) - np.maximum(abs_tol_mps, rel_tol * vref)
+                excess = excess[vref >= min_speed_mps]
+                if not excess.size:
+                    continue
                 worst = max(worst, float(excess.max()))
             self.speed_deficit[lab] = worst
 
@@ -89,12 +96,13 @@ class Probe:
 
 def search_min_headway(
     run_at: Callable[[float], Probe], labels: list[str], guess_s: dict[str, float], tolerance_s: float = 2.0,
-    resolution_s: float = 0.25, max_expand: int = 6,
+    resolution_s: float = 0.25, max_expand: int = 6, bracket: float = 0.15,
 ) -> dict[str, tuple[float, Probe]]:
     """Bisection on the release interval for every measuring point.
 
-    ``guess_s`` brackets the search (e.g. the analytic headway); the bracket is widened until its
-    lower end is hindered and its upper end is not, so the guess never decides the answer.
+    ``guess_s`` brackets the search (e.g. the analytic headway): [g·(1 − bracket), g·(1 + bracket)];
+    the bracket is widened (doubling steps) until its lower end is hindered and its upper end is
+    not, so the guess never decides the answer — a good guess only saves simulations.
     """
     cache: dict[float, Probe] = {}
 
@@ -107,15 +115,20 @@ def search_min_headway(
     out: dict[str, tuple[float, Probe]] = {}
     for lab in labels:
         g = max(guess_s.get(lab, 60.0), 1.0)
-        lo, hi = 0.85 * g, 1.15 * g
+        step = max(bracket * g, resolution_s)
+        lo, hi = max(g - step, 0.1), g + step
         for _ in range(max_expand):
             if not probe(lo).ok(lab, tolerance_s):
                 break
-            lo *= 0.7
+            hi = lo  # lo is unhindered: the answer is at or below it
+            step *= 2.0
+            lo = max(lo - step, 0.1)
         for _ in range(max_expand):
             if probe(hi).ok(lab, tolerance_s):
                 break
-            lo, hi = hi, hi * 1.4
+            lo = hi
+            step *= 2.0
+            hi = hi + step
         if not probe(hi).ok(lab, tolerance_s):
             out[lab] = (math.nan, probe(hi))
             continue
