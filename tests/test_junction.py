@@ -191,3 +191,24 @@ def test_split_only_and_merge_only_directions(tmp_path):
         assert x.collisions == 0 and not math.isnan(x.junction_throughput_trains_per_h)
     mb, fbs = (df[(df.direction == "up") & (df.regime == r)].iloc[0] for r in ("mb", "fbs"))
     assert mb.split_throughput_trains_per_h > fbs.split_throughput_trains_per_h
+
+
+def test_junction_study_file_runs_the_command(in_tmp, capsys, root):
+    from vcsumo.cli import main
+    from vcsumo.study_files import load_study, study_arguments
+
+    # the shipped files map onto the command line of `vcsumo study junction`
+    st = load_study(root / "studies" / "junction_milano_bologna.yaml")
+    args = study_arguments(st, root / "studies" / "junction_milano_bologna.yaml", None)
+    assert args[:2] == ["study", "junction"] and args[args.index("--junction") + 1] == "venezia"
+    assert args[args.index("--junction-signal") + 1] == "braking-curve"
+    # through `vcsumo study run`: a bad junction id is one error naming the line file and field, exit 2, no folder
+    f = write(in_tmp / "j.yaml", "study: junction\nline: milano_bologna\njunction: bivio_nowhere\nout: res\n")
+    assert main(["study", "run", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert "line.yaml" in err and "branches" in err and "bivio_nowhere" in err
+    assert not (in_tmp / "res").exists() and not list(in_tmp.glob("res*"))
+    # an unknown key in the study file
+    f = write(in_tmp / "k.yaml", "study: junction\nline: firenze_bologna\njunction_sigal: sumo\n")
+    assert main(["study", "run", str(f)]) == 2
+    assert "junction_sigal" in capsys.readouterr().err

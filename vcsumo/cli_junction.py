@@ -2,9 +2,8 @@
 
 A thin command in the style of :mod:`vcsumo.cli`: parse options, load inputs, call
 :func:`vcsumo.studies.junction.run_junction_study` with a progress bar, print the table and where
-it wrote.  Register it under the ``study`` group of :mod:`vcsumo.cli` with
-``from vcsumo.cli_junction import junction_cmd`` and ``study.add_command(junction_cmd)`` (this module
-imports :mod:`vcsumo.cli` only when the command runs).
+it wrote.  :mod:`vcsumo.cli` registers it under the ``study`` group (this module imports
+:mod:`vcsumo.cli` only when the command runs).
 """
 
 from __future__ import annotations
