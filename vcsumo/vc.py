@@ -308,6 +308,7 @@ class VCDriver:
         self.plan_step_s = plan_step_s
         # predicted trajectories are sent only to controllers that use them (SH predictor, RLP)
         self.send_plans = self.name != "cbc"
+        self._plans: dict[str, tuple] = {}
         self.guard = guard or GuardConfig()
         self.trains: dict[str, PlannedTrain] = {}
         self.convoy_of: dict[str, tuple[str, ...]] = {}
@@ -354,8 +355,7 @@ class VCDriver:
             times = pos = spd = frc = None
             if f is None:  # convoy leader: its unhindered profile from its state
                 if self.send_plans:
-                    rest = [x for x in plan.stops if x.s_m > st.s_m + 1.0]
-                    times, pos, spd, frc = leader_plan(plan, st.s_m, st.speed_mps, t, self.plan_horizon_s, self.plan_step_s, rest)
+                    times, pos, spd, frc = self._leader_plan(tid, plan, st, t)
             elif f.last_cmd is not None and f.last_cmd.plan_times_s is not None:
                 times, pos, spd, frc = f.last_cmd.plan_times_s, f.last_cmd.plan_positions_m, f.last_cmd.plan_speeds_mps, f.last_cmd.plan_forces_n
             force = f.last_cmd.force_n if f is not None and f.last_cmd is not None else (float(frc[0]) if frc is not None else 0.0)
@@ -372,6 +372,26 @@ class VCDriver:
                     plan_times_s=times, plan_positions_m=None if pos is None else pos + off, plan_speeds_mps=spd, plan_forces_n=frc,
                 )
                 self.channel.send(msg, [other], t)
+
+    def _leader_plan(self, tid: str, plan: PlannedTrain, st, t: float):
+        """The leader's plan over the next ``plan_horizon_s``: computed for twice the horizon and
+        reused while the leader runs on it (within 2 m and 0.3 m/s) — an unhindered SUMO leader
+        does, so the plan is recomputed about once per horizon instead of at every message."""
+        c = self._plans.get(tid)
+        if c is not None:
+            times, pos, spd, frc, complete = c
+            if (complete or t + self.plan_horizon_s <= times[-1] + 1e-9) and t <= times[-1] and abs(float(np.interp(t, times, pos)) - st.s_m) <= 2.0 \
+                    and abs(float(np.interp(t, times, spd)) - st.speed_mps) <= 0.3:
+                grid = t + np.arange(0.0, self.plan_horizon_s + 1e-9, self.plan_step_s)
+                grid = grid[grid <= times[-1] + 1e-9] if complete else grid
+                if grid.size >= 2:
+                    return grid, np.interp(grid, times, pos), np.interp(grid, times, spd), np.interp(grid, times, frc)
+        rest = [x for x in plan.stops if x.s_m > st.s_m + 1.0]
+        times, pos, spd, frc = leader_plan(plan, st.s_m, st.speed_mps, t, 2.0 * self.plan_horizon_s, self.plan_step_s, rest)
+        complete = times[-1] < t + 2.0 * self.plan_horizon_s - self.plan_step_s - 1e-9
+        self._plans[tid] = (times, pos, spd, frc, complete)
+        keep = times <= t + self.plan_horizon_s + 1e-9
+        return times[keep], pos[keep], spd[keep], frc[keep]
 
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""

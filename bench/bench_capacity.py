@@ -1,0 +1,76 @@
+"""Wall time of ``vcsumo study capacity`` and where it goes.
+
+Runs the capacity study (default: firenze_bologna with the command's default options) into a
+temporary folder, or reads a finished study's ``capacity.csv`` (``--from DIR``), and prints the
+total wall time, the time per case, and the split of the summed case time into SUMO stepping
+(libsumo ``simulationStep``), vcsumo's VC controllers (``VCDriver.make_step``: channel,
+controllers, supervisor, guard), result I/O, and the rest of the loop (observing trains, gap and
+violation checks, speed traces, tunnel vType switches, fixed-time caps).
+
+    python bench/bench_capacity.py [--line firenze_bologna] [--workers 2] [--directions up,down] [--from DIR]
+
+Target (issue 4): the default study on firenze_bologna in at most 3 minutes on a 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+
+
+def report(df: pd.DataFrame, wall_s: float | None) -> None:
+    ok = df[df.error.fillna("") == ""] if "error" in df else df
+    fresh = ok.drop_duplicates(subset=["direction", "stopping_pattern", "regime", "controller", "convoy_size"])
+    fresh = fresh[~((fresh.regime == "vc") & (fresh.convoy_size == 1))]
+    case_s = float(fresh.wall_time_s.sum())
+    sumo = float(fresh.sumo_time_s.sum())
+    ctrl = float(fresh.controller_time_s.sum())
+    io = float(fresh.io_time_s.sum())
+    if wall_s is not None:
+        print(f"total wall time            {wall_s:8.1f} s   ({wall_s / 60:.1f} min)")
+    print(f"cases simulated            {len(fresh):8d}     ({int(fresh.simulations.sum())} SUMO runs)")
+    print(f"summed case time           {case_s:8.1f} s   (over all worker processes)")
+    for name, x in (("SUMO stepping", sumo), ("VC controllers", ctrl), ("result I/O", io), ("loop, search, analysis", case_s - sumo - ctrl - io)):
+        print(f"  {name:<24} {x:8.1f} s   {100 * x / max(case_s, 1e-9):5.1f} %")
+    print("\nslowest cases:")
+    cols = ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "simulations", "wall_time_s", "sumo_time_s", "controller_time_s"]
+    print(fresh.sort_values("wall_time_s", ascending=False)[cols].head(8).to_string(index=False))
+    by = fresh.groupby("regime").wall_time_s.sum()
+    print("\ncase time by regime: " + ", ".join(f"{k} {v:.1f} s" for k, v in by.items()))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--line", default="firenze_bologna")
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--directions", default="up,down")
+    ap.add_argument("--from", dest="from_dir", type=Path, default=None, help="Report on a finished study folder instead of running one")
+    args = ap.parse_args()
+    print(f"python {platform.python_version()} on {platform.machine()}, {os.cpu_count()} CPUs")
+    if args.from_dir is not None:
+        report(pd.read_csv(args.from_dir / "capacity.csv"), None)
+        return
+    from vcsumo.cli import main as cli
+
+    with tempfile.TemporaryDirectory(prefix="vcsumo-bench-") as tmp:
+        out = Path(tmp) / "cap"
+        argv = ["study", "capacity", "--line", args.line, "--directions", args.directions, "--out", str(out)]
+        if args.workers:
+            argv += ["--workers", str(args.workers)]
+        t0 = time.perf_counter()
+        rc = cli(argv)
+        wall = time.perf_counter() - t0
+        if rc != 0:
+            raise SystemExit(rc)
+        print(f"\nvcsumo study capacity --line {args.line} --directions {args.directions}")
+        report(pd.read_csv(out / "capacity.csv"), wall)
+
+
+if __name__ == "__main__":
+    main()
