@@ -25,7 +25,7 @@ import pandas as pd
 
 
 def report(df: pd.DataFrame, wall_s: float | None) -> None:
-    ok = df[df.error.fillna("") == ""] if "error" in df else df
+    ok = df[df.error.isna() | (df.error.astype(str) == "")] if "error" in df else df
     fresh = ok.drop_duplicates(subset=["direction", "stopping_pattern", "regime", "controller", "convoy_size"])
     fresh = fresh[~((fresh.regime == "vc") & (fresh.convoy_size == 1))]
     case_s = float(fresh.wall_time_s.sum())

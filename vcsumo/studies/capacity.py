@@ -412,7 +412,8 @@ def run_capacity_study(
     setups = {d: route_setup(line, net, stock, d, step_s) for d in directions}
     if patterns is None:
         patterns = tuple(p for p in PATTERNS if p == "non-stop" or any(setups[d].stops_full for d in directions))
-    cases = cases_for(directions, patterns, controllers, convoy_sizes)
+    # all-stops only where the direction has a station to stop at after its release point
+    cases = [c for c in cases_for(directions, patterns, controllers, convoy_sizes) if c.pattern == "non-stop" or setups[c.direction].stops_full]
     # VC with one train is moving block: its rows repeat MB's
     todo = [c for c in cases if not (c.regime == "vc" and c.convoy_size == 1)]
     example_of = {}
@@ -465,6 +466,6 @@ def run_capacity_study(
     df.to_csv(out / "capacity.csv", index=False)
     from vcsumo.plots import plot_capacity, plot_time_distance_stairs
 
-    plot_capacity(df[df.error.fillna("") == ""], out / "capacity.png")
+    plot_capacity(df[df.error.isna() | (df.error.astype(str) == "")], out / "capacity.png")
     plot_time_distance_stairs(examples, setups, out / "time_distance.png", line.name)
     return df
