@@ -441,7 +441,7 @@ def _capacity(uic: pd.DataFrame, spec: RunSpec, window_s: float) -> tuple[float,
 # Execution
 
 
-def _silence_worker(log_path: str) -> None:
+def silence_worker(log_path: str) -> None:
     """Worker initializer: SUMO's console messages go to workers.log, not over the progress bar."""
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(fd, 1)
@@ -459,7 +459,7 @@ def _run_local(pending: list[RunSpec], workers: int, log_path: Path, on_outcome:
     queue = list(pending)
     ctx = multiprocessing.get_context("spawn")
     while queue:
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx, initializer=_silence_worker, initargs=(str(log_path),))
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx, initializer=silence_worker, initargs=(str(log_path),))
         futures: dict[Future, RunSpec] = {}
         try:
             for spec in queue:

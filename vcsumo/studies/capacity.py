@@ -374,15 +374,6 @@ def _case_task(args: tuple) -> tuple[Case, CaseResult | None, str]:
     return case, res, ""
 
 
-def _silence_worker(log_path: str) -> None:
-    import os
-
-    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-    os.dup2(fd, 1)
-    os.dup2(fd, 2)
-    os.close(fd)
-
-
 def _failed_row(line: Line, stock: RollingStock, net: BuiltNetwork, case: Case, error: str, fixed_time_s: float) -> dict:
     row = {c: math.nan for c in CAPACITY_COLUMNS}
     row.update(line=line.name, direction=case.direction, regime=case.regime, controller=case.controller or "", convoy_size=case.convoy_size,
@@ -438,9 +429,11 @@ def run_capacity_study(
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
+        from vcsumo.batch import silence_worker
+
         out.mkdir(parents=True, exist_ok=True)
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=_silence_worker,
+        with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=silence_worker,
                                  initargs=(str(out / "workers.log"),)) as pool:
             futs = [pool.submit(_case_task, t) for t in tasks]
             for f in as_completed(futs):
