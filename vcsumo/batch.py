@@ -359,6 +359,8 @@ def default_batch_out(line: Line, delay_sha256: str, step_length_s: float, block
 def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: list[int], controllers: list[str], delays: DelayConfig,
               out: Path, step_length_s: float = 0.5, block_length_m: float | None = None, command: str = "") -> list[RunSpec]:
     """Every timetable × regime × controller (vc only) × seed, in that order."""
+    from vcsumo.results import safe_component
+
     for r in regimes:
         if r not in REGIMES:
             raise InputError(None, "--regimes", f"unknown regime '{r}' (choose from {', '.join(REGIMES)})")
@@ -373,7 +375,7 @@ def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: lis
             for ctrl in (controllers or [DEFAULT_CONTROLLER]) if regime == "vc" else [""]:
                 for seed in seeds:
                     key = run_key(t_sha, regime, ctrl, seed, d_sha, l_sha, step_length_s, block_length_m)
-                    name = f"{tt.stem}-{regime}{'-' + ctrl if ctrl else ''}-s{seed}-{key[:8]}"
+                    name = safe_component(f"{tt.stem}-{regime}{'-' + ctrl if ctrl else ''}-s{seed}-{key[:8]}")  # ctrl may hold a path
                     specs.append(RunSpec(
                         line_path=str(line.path), block_length_m=block_length_m, timetable_path=str(tt), timetable=tt.stem,
                         timetable_sha256=t_sha, regime=regime, controller=ctrl, seed=int(seed), delays=delays.model_dump(mode="json"),

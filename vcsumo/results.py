@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import shutil
 import sys
 import time
@@ -22,10 +23,33 @@ from typing import Any
 from vcsumo.errors import VcsumoError
 
 
+_UNSAFE = re.compile(r"[/\\\x00-\x1f]")
+
+
+def safe_component(text: str, max_length: int = 120) -> str:
+    """``text`` as one harmless path component: a results sub-folder named after file contents.
+
+    Names taken from input files or options (timetable names, controller specs such as
+    ``cbc:../x.yaml``, ids) must not climb out of the results folder: path separators and control
+    characters become ``-``, a name that is only dots gets a ``_`` in front, and an over-long name
+    is cut and made unique with a hash (file systems allow 255 bytes).
+    """
+    out = _UNSAFE.sub("-", str(text))
+    if not out.strip("."):
+        out = "_" + out
+    if len(out.encode("utf-8")) > max_length:
+        digest = hashlib.sha256(str(text).encode("utf-8")).hexdigest()[:10]
+        out = out.encode("utf-8")[: max_length - 11].decode("utf-8", "ignore") + "-" + digest
+    return out
+
+
 def default_out(kind: str, name: str) -> Path:
-    """A new folder under ./results/ named after the command, the line and the time."""
+    """A new folder under ./results/ named after the command, the line and the time.
+
+    ``name`` comes from input files: it is made one safe path component (:func:`safe_component`).
+    """
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path("results") / f"{kind}-{name}-{stamp}"
+    base = Path("results") / safe_component(f"{kind}-{name}-{stamp}")
     out = base
     k = 1
     while out.exists():

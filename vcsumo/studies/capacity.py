@@ -356,7 +356,9 @@ def cases_for(directions, patterns, controllers, sizes) -> list[Case]:
 
 
 def _case_dir(out: Path, case: Case) -> Path:
-    return out / "runs" / f"{case.direction}_{case.pattern}_{case.regime}_{case.controller or 'sumo'}_{case.convoy_size}".replace(":", "-")
+    from vcsumo.results import safe_component  # the controller spec may hold a path ('cbc:../p.yaml')
+
+    return out / "runs" / safe_component(f"{case.direction}_{case.pattern}_{case.regime}_{case.controller or 'sumo'}_{case.convoy_size}".replace(":", "-"))
 
 
 def _case_task(args: tuple) -> tuple[Case, CaseResult | None, str]:
