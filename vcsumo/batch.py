@@ -22,6 +22,11 @@ continues an interrupted batch, and adding seeds or timetables only runs the new
 ``batch.csv`` is appended one whole line at a time (flushed to disk); a line cut off by an
 interruption is discarded on the next start, and train rows without their run row are dropped.
 Failed runs count as finished unless ``retry_failed``.
+A run that fails (bad input, SUMO stopping on an error mid-run) is a row with status ``failed``
+and its ``error``; its results folder is removed (never left half-written).  A worker process that
+dies during a run (SIGKILL, SUMO aborting the process) fails only that run: the other unfinished
+runs are retried, the culprit is found by running the suspects one per process
+(:func:`_run_local`), and the finished rows are kept.
 
 Metrics of a run (``BATCH_COLUMNS``; times in s):
 
@@ -451,24 +456,52 @@ def silence_worker(log_path: str) -> None:
     os.close(fd)
 
 
+WORKER_DIED = "the worker process died during the run (killed by a signal, out of memory, or SUMO aborted the process)"
+
+
+def _partials(spec: RunSpec) -> list[Path]:
+    """Partial results folders of a run (``<run_dir>.partial-<pid>``) left by a worker that died."""
+    d = Path(spec.run_dir)
+    return sorted(d.parent.glob(f"{d.name}.partial-*")) if d.parent.is_dir() else []
+
+
+def _remove_partials(spec: RunSpec) -> None:
+    import shutil
+
+    for p in _partials(spec):
+        shutil.rmtree(p, ignore_errors=True)
+
+
 def _run_local(pending: list[RunSpec], workers: int, log_path: Path, on_outcome: Callable[[RunSpec, dict], None]) -> None:
-    """Run in a pool of spawned processes; a crashed worker (SUMO abort) breaks only its runs."""
+    """Run in pools of spawned processes; a worker that dies (SIGKILL, SUMO abort) fails only its own run.
+
+    A dead worker breaks the whole pool (``BrokenProcessPool`` for every unfinished future), so
+    the unfinished runs are sorted out: runs that were under way (their partial results folder
+    exists) or that were in a broken pool before are *suspects* and run again one at a time, each
+    in its own single-worker pool; a suspect whose worker dies there is the culprit and becomes a
+    failed row (error :data:`WORKER_DIED`).  The other runs go back to the parallel queue.  The
+    partial results folders of dead workers are removed, so no half-written run folder remains.
+    """
     if workers <= 0:
         for spec in pending:
             on_outcome(spec, run_one(spec))
         return
-    attempts: dict[str, int] = {}
+    breaks: dict[str, int] = {}
     queue = list(pending)
+    suspects: list[RunSpec] = []
     ctx = multiprocessing.get_context("spawn")
-    while queue:
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx, initializer=silence_worker, initargs=(str(log_path),))
+    while queue or suspects:
+        isolated = not queue
+        batch = [suspects.pop(0)] if isolated else queue
+        queue = []
+        pool = ProcessPoolExecutor(max_workers=1 if isolated else min(workers, len(batch)), mp_context=ctx, initializer=silence_worker,
+                                   initargs=(str(log_path),))
         futures: dict[Future, RunSpec] = {}
+        lost: list[RunSpec] = []
         try:
-            for spec in queue:
+            for spec in batch:
                 futures[pool.submit(run_one, spec)] = spec
-            queue = []
             not_done = set(futures)
-            broken = False
             while not_done:
                 done, not_done = wait(not_done, return_when=FIRST_COMPLETED)
                 for fut in done:
@@ -476,30 +509,28 @@ def _run_local(pending: list[RunSpec], workers: int, log_path: Path, on_outcome:
                     try:
                         outcome = fut.result()
                     except BrokenProcessPool:
-                        broken = True
-                        attempts[spec.key] = attempts.get(spec.key, 0) + 1
-                        if attempts[spec.key] >= 2:
-                            outcome = failed_outcome(spec, "the worker process died during the run (SUMO crashed?)")
-                        else:
-                            queue.append(spec)
-                            continue
+                        lost.append(spec)
+                        continue
                     except Exception as exc:  # pragma: no cover - run_one never raises
                         outcome = failed_outcome(spec, _error_message(exc))
                     on_outcome(spec, outcome)
-                if broken:
-                    # the pool is unusable: every unfinished run is retried in a fresh pool
-                    for fut in not_done:
-                        spec = futures[fut]
-                        attempts[spec.key] = attempts.get(spec.key, 0) + 1
-                        if attempts[spec.key] >= 2:
-                            on_outcome(spec, failed_outcome(spec, "the worker process died during the run (SUMO crashed?)"))
-                        else:
-                            queue.append(spec)
+                if lost:  # the pool is unusable: every unfinished future fails the same way
+                    lost += [futures[f] for f in not_done]
                     not_done = set()
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
             raise
         pool.shutdown(wait=True)
+        for spec in lost:
+            under_way = bool(_partials(spec))
+            _remove_partials(spec)
+            breaks[spec.key] = breaks.get(spec.key, 0) + 1
+            if isolated:
+                on_outcome(spec, failed_outcome(spec, WORKER_DIED))
+            elif under_way or breaks[spec.key] >= 2:
+                suspects.append(spec)
+            else:
+                queue.append(spec)
 
 
 def _run_dask(pending: list[RunSpec], scheduler: str, on_outcome: Callable[[RunSpec, dict], None]) -> None:

@@ -16,6 +16,11 @@ vcsumo driver drives it, else the 50 m moving-block margin above 30 km/h); the t
 is reported too (``gap_violation_time_s``), also when a train starts below it (a convoy forming
 behind a leader that left less than d_min ahead), and so is the minimum gap.
 Everything is written into the run's folder as tidy CSV plus SUMO's own outputs.
+
+If SUMO fails during the run (an error it stops on, or the simulation closed), :func:`simulate`
+raises one :class:`~vcsumo.errors.SumoError` naming the line file, the network file and the
+simulation time; the caller's :class:`~vcsumo.results.ResultsFolder` then removes the partial
+folder, so no half-written results remain.
 """
 
 from __future__ import annotations
@@ -197,7 +202,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         )
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}
-    with SumoBackend(args, error_log=out / "sumo_errors.log") as sim:
+    label = f"{scn.line.path} ({scn.regime}, network {scn.network.net_file})"
+    with SumoBackend(args, error_log=out / "sumo_errors.log", label=label) as sim:
         t = sim.time
         while True:
             t0 = time.perf_counter()

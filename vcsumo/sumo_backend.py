@@ -12,10 +12,17 @@ Speed modes (``setSpeedMode`` bit masks, SUMO docs "TraCI/Change Vehicle State")
   safe-speed (absolute braking distance) check and its braking cap (service ``decel``) are OFF, so
   the follower can apply its emergency brake; vcsumo bounds the deceleration itself with the train
   model (eq. 1b at the emergency braking force), SUMO still enforces traction and red signals.
+
+Failures.  Every call into libsumo goes through :func:`_traci`: a TraCIException or
+FatalTraCIError (SUMO stopped on an error, e.g. a route it cannot load mid-run, or the simulation
+was closed) becomes one :class:`~vcsumo.errors.SumoError` naming what ran (``label``: the scenario
+and network files), the simulation time of the last completed step, the call and SUMO's own error
+lines; a call after :meth:`SumoBackend.close` gives the same error.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,13 +49,36 @@ class TrainObservation:
     type_id: str
 
 
-class SumoBackend:
-    """A running SUMO simulation (libsumo), used as ``with SumoBackend(args) as sim: ...``."""
+def _traci(fn):
+    """Turn libsumo's exceptions (and calls after close) into one :class:`SumoError` with context."""
 
-    def __init__(self, args: list[str], error_log: Path | None = None):
+    @functools.wraps(fn)
+    def call(self: "SumoBackend", *args, **kwargs):
+        try:
+            return fn(self, *args, **kwargs)
+        except SumoError:
+            raise
+        except Exception as exc:
+            ls = self._ls
+            if ls is None or isinstance(exc, (ls.TraCIException, ls.FatalTraCIError)):
+                raise self._failure(fn.__name__, exc) from None
+            raise
+
+    return call
+
+
+class SumoBackend:
+    """A running SUMO simulation (libsumo), used as ``with SumoBackend(args) as sim: ...``.
+
+    ``label`` names the run in error messages (e.g. the scenario and network files).
+    """
+
+    def __init__(self, args: list[str], error_log: Path | None = None, label: str = ""):
         self.args = list(args)
         self.error_log = error_log
+        self.label = label
         self._ls = None
+        self._time = math.nan
 
     # ----------------------------------------------------------------------------- lifecycle
     def __enter__(self) -> "SumoBackend":
@@ -69,7 +99,9 @@ class SumoBackend:
         try:
             libsumo.start(cmd)
         except Exception as exc:  # libsumo raises TraCIException / FatalTraCIError
-            raise SumoError(f"SUMO failed to start: {self._errors() or exc}") from None
+            where = f"{self.label}: " if self.label else ""
+            raise SumoError(f"{where}SUMO failed to start: {self._errors() or _one_line(exc)}") from None
+        self._time = libsumo.simulation.getTime()
 
     def close(self) -> None:
         if self._ls is not None:
@@ -79,6 +111,12 @@ class SumoBackend:
                 pass
             self._ls = None
 
+    def _failure(self, call: str, exc: BaseException) -> SumoError:
+        where = f"{self.label}: " if self.label else ""
+        if self._ls is None:
+            return SumoError(f"{where}SUMO is not running (closed before '{call}', last step t = {self._time:g} s)")
+        return SumoError(f"{where}SUMO failed during the simulation after t = {self._time:g} s ({call}): {self._errors() or _one_line(exc)}")
+
     def _errors(self) -> str:
         if self.error_log is not None and self.error_log.is_file():
             lines = [ln.strip() for ln in self.error_log.read_text(errors="replace").splitlines() if ln.startswith("Error")]
@@ -86,31 +124,39 @@ class SumoBackend:
         return ""
 
     # ----------------------------------------------------------------------------- stepping
+    @_traci
     def step(self) -> float:
         """Advance one step; returns the new simulation time, s."""
-        try:
-            self._ls.simulationStep()
-        except Exception as exc:
-            raise SumoError(f"SUMO failed during the simulation: {self._errors() or exc}") from None
-        return self._ls.simulation.getTime()
+        self._ls.simulationStep()
+        self._time = self._ls.simulation.getTime()
+        return self._time
 
     @property
     def time(self) -> float:
+        return self._get_time()
+
+    @_traci
+    def _get_time(self) -> float:
         return self._ls.simulation.getTime()
 
+    @_traci
     def min_expected(self) -> int:
         """Trains still in the simulation or waiting to be inserted."""
         return self._ls.simulation.getMinExpectedNumber()
 
+    @_traci
     def departed(self) -> list[str]:
         return list(self._ls.simulation.getDepartedIDList())
 
+    @_traci
     def arrived(self) -> list[str]:
         return list(self._ls.simulation.getArrivedIDList())
 
+    @_traci
     def train_ids(self) -> list[str]:
         return list(self._ls.vehicle.getIDList())
 
+    @_traci
     def observe(self, vid: str) -> TrainObservation:
         v = self._ls.vehicle
         return TrainObservation(
@@ -119,6 +165,7 @@ class SumoBackend:
             type_id=v.getTypeID(vid),
         )
 
+    @_traci
     def leader(self, vid: str, lookahead_m: float) -> tuple[str, float] | None:
         """(leader id, gap front-to-rear in m) within ``lookahead_m`` on the route ahead, or None."""
         res = self._ls.vehicle.getLeader(vid, lookahead_m)
@@ -146,38 +193,47 @@ class SumoBackend:
                 best = (oid, gap)
         return best
 
+    @_traci
     def driving_distance(self, vid: str, edge: str, pos: float) -> float | None:
         d = self._ls.vehicle.getDrivingDistance(vid, edge, pos)
         return None if d <= INVALID_DISTANCE + 1 or d < -1e8 else d
 
     # ----------------------------------------------------------------------------- commands
+    @_traci
     def set_type(self, vid: str, type_id: str) -> None:
         self._ls.vehicle.setType(vid, type_id)
 
+    @_traci
     def set_speed(self, vid: str, speed_mps: float) -> None:
         """Command a speed for the next step (−1 gives control back to SUMO)."""
         self._ls.vehicle.setSpeed(vid, speed_mps)
 
+    @_traci
     def set_speed_mode(self, vid: str, mode: int) -> None:
         self._ls.vehicle.setSpeedMode(vid, mode)
 
+    @_traci
     def release(self, vid: str) -> None:
         """Hand a train back to SUMO's own driver."""
         self._ls.vehicle.setSpeedMode(vid, SPEED_MODE_DEFAULT)
         self._ls.vehicle.setSpeed(vid, -1)
 
     # ----------------------------------------------------------------------------- safety events
+    @_traci
     def collisions(self) -> list[tuple[str, str]]:
         """(collider, victim) pairs of this step."""
         return [(c.collider, c.victim) for c in self._ls.simulation.getCollisions()]
 
+    @_traci
     def emergency_stops(self) -> list[str]:
         """Trains that braked harder than their service deceleration in this step."""
         return list(self._ls.simulation.getEmergencyStoppingVehiclesIDList())
 
+    @_traci
     def teleports(self) -> list[str]:
         return list(self._ls.simulation.getStartingTeleportIDList())
 
+    @_traci
     def signal_states(self) -> dict[str, str]:
         tl = self._ls.trafficlight
         return {t: tl.getRedYellowGreenState(t) for t in tl.getIDList()}
@@ -206,6 +262,10 @@ def sumo_args(
     if moving_block:
         args += ["--railsignal-moving-block", "true"]
     return args
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def is_valid_distance(d: float) -> bool:

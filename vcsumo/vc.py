@@ -11,7 +11,11 @@
    speed of the predecessor (once it is the train SUMO sees ahead), and its route profile;
 3. asks the follower's controller for a force (MPC, consensus, Terlizzi's switched cruise
    controller) and passes it through the CBF supervisor when the controller name starts with
-   ``cbf-``;
+   ``cbf-`` — both inside the follower's :class:`~vcsumo.control.faults.FaultStage`: a controller
+   or supervisor that raises, returns a non-finite force or reports an infeasible problem without a
+   usable fallback, or an observation with a non-finite state, gives the follower the emergency
+   brake until data and controller have been valid for ``fault_recovery_s`` (events in
+   ``faults.csv``, counted as ``fault_events`` / ``fault_emergency_steps`` in the summary);
 4. turns the force into the speed the train reaches after one step under eq. 1b (the shared train
    model, the force bounded below by the emergency brake), caps it with the relative-braking guard
    (:func:`guard_speed`) — the last filter stage, applied to every controller — and the loop sends
@@ -57,6 +61,7 @@ import pandas as pd
 
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
+from vcsumo.control.faults import FAULT_KINDS, FaultStage, faults_frame
 from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
@@ -293,6 +298,7 @@ class _Follower:
     next_stop: int = 0
     stop_handovers: int = 0
     at_stop: bool = False
+    stage: FaultStage | None = None
 
 
 class VCDriver:
@@ -300,7 +306,7 @@ class VCDriver:
 
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
                  cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
-                 plan_step_s: float = 0.5):
+                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0):
         self.name, self.params_spec = parse_controller(controller)
         self.step_s = step_s
         self.channel = Channel((channel or ChannelConfig(model="ideal", period_s=step_s)).model_copy(update={"seed": seed}))
@@ -340,7 +346,8 @@ class VCDriver:
                     stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
                     plats.append(0.0)
                 self.followers[ego.id] = _Follower(ego, pred, ids, nominal, sup, d_min, frames, stops_m=stops, platforms_m=plats,
-                                                   params=ego.stock.params(), pred_params=pred.stock.params())
+                                                   params=ego.stock.params(), pred_params=pred.stock.params(),
+                                                   stage=FaultStage(nominal, ego.stock.params(), sup, ego.id, fault_recovery_s))
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         arrange_convoy_departures(convoys, {fid: f.d_min + 2.0 for fid, f in self.followers.items()})
 
@@ -454,12 +461,8 @@ class VCDriver:
                 sensed_gap_m=sensed_gap, sensed_speed_mps=sensed_speed,
             )
             t0 = time.perf_counter()
-            cmd = f.nominal.make_step(obs)
-            if f.supervisor is not None:
-                filtered = f.supervisor.filter(obs, cmd)
-                if filtered.force_n != cmd.force_n:
-                    f.interventions += 1
-                cmd = filtered
+            cmd = f.stage.make_step(obs)  # controller -> CBF supervisor, with fault handling
+            f.interventions = f.stage.supervisor_interventions
             f.solve_ms.append(1000.0 * (time.perf_counter() - t0))
             f.last_cmd = cmd
             f.steps += 1
@@ -483,7 +486,9 @@ class VCDriver:
                 s_l, v_l = st.s_m + sensed_gap + f.pred.stock.length_m, sensed_speed
             else:
                 m = received.get(f.pred.id)
-                s_l, v_l = (m.state.position_m, m.state.speed_mps) if m is not None else (st.s_m, 0.0)
+                # no (finite) information about the predecessor: it may be standing at the follower's front
+                known = m is not None and math.isfinite(m.state.position_m) and math.isfinite(m.state.speed_mps)
+                s_l, v_l = (m.state.position_m, m.state.speed_mps) if known else (st.s_m, 0.0)
             ps = f.pred.stock
             pp = f.pred_params
             # approaching its own stop the follower keeps to service braking, so that SUMO (which
@@ -538,16 +543,24 @@ class VCDriver:
             "controller_step_median_ms": float(np.median(solve)) if solve.size else None,
             "controller_step_p99_ms": float(np.percentile(solve, 99)) if solve.size else None,
             "channel_sent": self.channel.sent, "channel_lost": self.channel.lost,
+            "fault_events": len(self.fault_events()), "fault_emergency_steps": int(sum(f.stage.emergency_steps for f in fs)),
+            **{f"fault_events_{k}": int(sum(f.stage.counts()[k] for f in fs)) for k in FAULT_KINDS},
         }
 
+    def fault_events(self) -> list:
+        """Every follower's fault events (:class:`~vcsumo.control.faults.FaultEvent`), by time."""
+        return sorted((e for f in self.followers.values() for e in f.stage.events), key=lambda e: (e.time_s, e.train))
+
     def write_report(self, out: Path) -> None:
-        """``vc_followers.csv`` (per follower step records) and ``vc_summary.json``."""
+        """``vc_followers.csv`` (per follower step records), ``faults.csv`` (fault events) and ``vc_summary.json``."""
         pd.DataFrame(self.records).to_csv(out / "vc_followers.csv", index=False)
+        faults_frame(self.fault_events()).to_csv(out / "faults.csv", index=False)
         per = []
         for fid, f in self.followers.items():
             per.append({"train": fid, "predecessor": f.pred.id, "coupled_steps": f.steps, "infeasible_steps": f.infeasible, "stop_handovers": f.stop_handovers,
                         "emergency_activations": f.emergency_episodes, "supervisor_interventions": f.interventions, "guard_interventions": f.guard_interventions,
-                        "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes})
+                        "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes,
+                        "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps})
         (out / "vc_summary.json").write_text(json.dumps({"summary": self.summary(), "followers": per}, indent=2, default=str))
 
 

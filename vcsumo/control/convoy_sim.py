@@ -14,6 +14,13 @@ Within a step at time t: every due train sends its state (stamped t); the channe
 leader and the controllers compute their commands; one row per train is recorded; the plants
 advance by dt.
 
+Faults: every follower's controller runs inside a :class:`~vcsumo.control.faults.FaultStage` (the
+same stage as in the SUMO loop): a controller that raises, returns a non-finite force or reports an
+infeasible problem without a usable fallback, or an observation holding a non-finite state, gives
+that follower the emergency brake (mode ``fault-emergency``) until the data and the controller have
+been valid for ``recovery_s``.  The events are in ``df.attrs["faults"]`` (rows of ``faults.csv``,
+:data:`~vcsumo.control.faults.FAULT_COLUMNS`) and appended to ``fault_log`` when given.
+
     >>> df = simulate_convoy(["etr1000"] * 4, lambda tid: ConsensusController(),
     ...                      SpeedProfile((0, 600), (50, 50)), 300.0, 0.1, None, [150, 150, 150])
 """
@@ -28,6 +35,7 @@ import pandas as pd
 
 from vcsumo.control.base import Controller, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
+from vcsumo.control.faults import FaultEvent, FaultStage, faults_frame
 from vcsumo.dynamics import TrainParams, gradient_force, running_resistance
 from vcsumo.plant import PlantState, TrainPlant
 from vcsumo.rolling_stock import load_rolling_stock
@@ -98,6 +106,10 @@ def simulate_convoy(
     apply_lag: bool = True,
     apply_jerk: bool = True,
     record_every: int = 1,
+    channel: Channel | None = None,
+    fault_handling: bool = True,
+    recovery_s: float = 1.0,
+    fault_log: list[FaultEvent] | None = None,
 ) -> pd.DataFrame:
     """Simulate a convoy and return a tidy DataFrame (one row per train and recorded step).
 
@@ -112,6 +124,12 @@ def simulate_convoy(
     initial_speeds_mps: every train's initial speed (default: the leader profile's speed at t = 0).
     profile: the route (default: a level straight line long enough, 100 m/s limit).
     train_ids: ids (default ``T0..T{n−1}``).
+    channel: a ready :class:`~vcsumo.control.channel.Channel` to use instead of one built from
+        ``channel_cfg`` (e.g. one that injects corrupted messages).
+    fault_handling: wrap every follower's controller in a :class:`~vcsumo.control.faults.FaultStage`
+        (False: the controller's command goes to the plant as it is, exceptions propagate).
+    recovery_s: the fault stage's latch, s (valid data and commands needed before it releases).
+    fault_log: a list the fault events are appended to.
 
     Columns: time_s, train, position_m (front), speed_mps, accel_mps2, force_n (force applied by the
     plant), gap_m (front-to-rear to the predecessor, NaN for the leader), force_cmd_n (controller
@@ -131,7 +149,8 @@ def simulate_convoy(
     v_init = list(initial_speeds_mps) if initial_speeds_mps is not None else [_initial_speed(leader_profile)] * n
     if len(v_init) != n:
         raise ValueError("initial_speeds_mps needs one value per train")
-    channel = Channel(channel_cfg or ChannelConfig(period_s=dt))
+    if channel is None:
+        channel = Channel(channel_cfg or ChannelConfig(period_s=dt))
     span = sum(p.length_m for p in params[:-1]) + sum(gaps)
     x0 = leader_position_m if leader_position_m is not None else span + params[-1].length_m + 10.0
     if profile is None:
@@ -144,6 +163,8 @@ def simulate_convoy(
         for p, s, v in zip(params, positions, v_init)
     ]
     controllers: dict[str, Controller] = {ids[k]: controller_factory(ids[k]) for k in range(1, n)}
+    if fault_handling:
+        controllers = {tid: FaultStage(c, params[ids.index(tid)], train_id=tid, recovery_s=recovery_s) for tid, c in controllers.items()}
     convoy = tuple(ids)
     steps = int(round(duration_s / dt))
     rows: list[tuple] = []
@@ -172,7 +193,7 @@ def simulate_convoy(
             )
             cmd = controllers[tid].make_step(obs)
             commands.append(float(cmd.force_n))
-            refs.append(float(cmd.info.get("gap_ref_m", np.nan)))
+            refs.append(float(cmd.info.get("gap_ref_m", np.nan)) if isinstance(cmd.info, dict) else np.nan)
             modes.append(cmd.mode)
         if k % record_every == 0:
             for idx, tid in enumerate(ids):
@@ -183,7 +204,12 @@ def simulate_convoy(
             break
         for idx in range(n):
             plants[idx].step(commands[idx], dt)
-    return pd.DataFrame.from_records(rows, columns=COLUMNS)
+    df = pd.DataFrame.from_records(rows, columns=COLUMNS)
+    events = [e for c in controllers.values() if isinstance(c, FaultStage) for e in c.events]
+    if fault_log is not None:
+        fault_log.extend(events)
+    df.attrs["faults"] = faults_frame(events).to_dict("records")
+    return df
 
 
 def _initial_speed(lp: LeaderProfile) -> float:
