@@ -32,6 +32,7 @@ TrackLayout = Literal["double", "single"]
 MAX_LINE_KM = 2000.0
 """Longest line (or branch) vcsumo builds, km."""
 Km = Annotated[float, Field(ge=-100000.0, le=100000.0, allow_inf_nan=False)]
+SPEED_DOC = "5–600 km/h (below 5 km/h is shunting, not a line speed, and makes runs endless; 600 km/h is above any wheel-rail record)"
 
 
 class Station(StrictModel):
@@ -40,8 +41,8 @@ class Station(StrictModel):
     id: str = Field(description="Short identifier used by timetables, e.g. 'FIRI'", pattern=r"^[A-Za-z][A-Za-z0-9_\-]*$")
     name: str = Field(description="Full station name")
     km: Km = Field(description="Chainage of the platform centre, km")
-    platform_length_m: float = Field(ge=10, le=5000, description="Usable platform length, m (10–5,000)")
-    dwell_s: float = Field(default=60.0, ge=0, le=86400, description="Default dwell time of a stopping train, s")
+    platform_length_m: float = Field(ge=10, le=5000, description="Usable platform length, m (10–5,000: no platform is shorter than a car or longer than 5 km)")
+    dwell_s: float = Field(default=60.0, ge=0, le=86400, description="Default dwell time of a stopping train, s (0–86,400: a dwell is not negative and not longer than a day)")
 
 
 class SpeedRange(StrictModel):
@@ -49,7 +50,7 @@ class SpeedRange(StrictModel):
 
     from_km: Km = Field(description="Start of the range, km")
     to_km: Km = Field(description="End of the range, km")
-    speed_kmh: float = Field(gt=0, le=600, description="Maximum permitted speed, km/h")
+    speed_kmh: float = Field(ge=5, le=600, description="Maximum permitted speed, km/h; " + SPEED_DOC)
 
 
 class GradientRange(StrictModel):
@@ -65,7 +66,7 @@ class CurveRange(StrictModel):
 
     from_km: Km = Field(description="Start of the curve, km")
     to_km: Km = Field(description="End of the curve, km")
-    radius_m: float = Field(gt=50, description="Curve radius, m")
+    radius_m: float = Field(gt=50, le=1e6, description="Curve radius, m (50 m–1,000 km: tighter is a tram, wider is straight track)")
 
 
 class Tunnel(StrictModel):
@@ -80,7 +81,7 @@ class Tunnel(StrictModel):
 class Signalling(StrictModel):
     """Fixed-block signalling: regular block markers or explicit signal positions."""
 
-    block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Regular block length, m (markers from the section start)")
+    block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Regular block length, m (markers from the section start); 100 m–50 km: shorter is not a block section, longer exceeds any real block")
     signals_km: list[Km] | None = Field(default=None, description="Explicit block-marker positions, km (both directions)")
     min_block_length_m: float = Field(default=100.0, ge=0, le=10000, description="Regular markers closer than this to a station or junction signal are dropped, m")
 
@@ -112,16 +113,16 @@ class Branch(StrictModel):
     end_name: str = Field(default="", description="Name of the place at the far end of the branch")
     junction_km: Km = Field(description="Main-line chainage of the junction, km")
     leaves_towards: Literal["start", "end"] = Field(description="The branch runs alongside the main line towards its start or its end")
-    length_m: float = Field(gt=0, le=MAX_LINE_KM * 1000, description="Length of the branch from the junction to its far end, m")
-    speed_kmh: float = Field(gt=0, le=600, description="Line speed on the branch, km/h")
-    diverging_speed_kmh: float = Field(gt=0, le=600, description="Speed through the turnout at the junction, km/h")
+    length_m: float = Field(gt=0, le=MAX_LINE_KM * 1000, description="Length of the branch from the junction to its far end, m (at most MAX_LINE_KM)")
+    speed_kmh: float = Field(ge=5, le=600, description="Line speed on the branch, km/h; " + SPEED_DOC)
+    diverging_speed_kmh: float = Field(ge=5, le=600, description="Speed through the turnout at the junction, km/h; " + SPEED_DOC)
     tracks: TrackLayout | None = Field(default=None, description="double or single; default: as the main line")
     speed_limits: list[SpeedRange] = Field(default_factory=list, description="Restrictions in branch km (0 at the junction)")
     gradients: list[GradientRange] = Field(default_factory=list, description="Gradients in branch km, ‰ rising away from the junction")
     curves: list[CurveRange] = Field(default_factory=list, description="Curves in branch km")
     tunnels: list[Tunnel] = Field(default_factory=list, description="Tunnels in branch km")
     stations: list[Station] = Field(default_factory=list, description="Stations in branch km")
-    block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Block length on the branch, m (default: as the main line)")
+    block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Block length on the branch, m, 100 m–50 km (default: as the main line)")
 
 
 class LineFile(StrictModel):
@@ -135,7 +136,7 @@ class LineFile(StrictModel):
     km_end: Km = Field(description="Chainage of the end of the main line, km")
     tracks: TrackLayout = Field(default="double", description="double (one track per direction) or single (both directions)")
     start_elevation_m: float = Field(default=0.0, ge=-1000, le=9000, allow_inf_nan=False, description="Elevation at km_start, m")
-    line_speed_kmh: float = Field(gt=0, le=600, description="Line speed where no restriction applies, km/h")
+    line_speed_kmh: float = Field(ge=5, le=600, description="Line speed where no restriction applies, km/h; " + SPEED_DOC)
     directions: dict[Literal["up", "down"], str] = Field(default_factory=dict, description="Labels of the directions")
     default_train: str | None = Field(default=None, description="Rolling stock used when a study names none")
     stations: list[Station] = Field(default_factory=list)

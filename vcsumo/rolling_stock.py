@@ -22,11 +22,15 @@ from pathlib import Path
 
 from pydantic import Field, model_validator
 
-from vcsumo.config import StrictModel, load_model
+from vcsumo.config import FieldProblem, StrictModel, load_model
 from vcsumo.dynamics import TrainParams
 from vcsumo.errors import InputError
 from vcsumo.line import project_root
 from vcsumo.units import kmh_to_ms
+
+
+MAX_ACCEL_MPS2 = 3.0
+"""Largest starting acceleration F_max/M accepted, m/s² (metros reach 1.3; adhesion caps it near 3)."""
 
 
 class Interval(StrictModel):
@@ -62,26 +66,28 @@ class RollingStock(StrictModel):
     title: str = Field(default="", description="Human-readable name")
     notes: str = Field(default="", description="Assumptions and caveats")
     sources: dict[str, str] = Field(default_factory=dict, description="Source key -> citation")
-    length_m: float = Field(gt=0, le=1500, description="Train length L, m")
-    mass_kg: float = Field(gt=0, description="Mass M, kg")
+    length_m: float = Field(ge=10, le=1500, description="Train length L, m (10–1,500: no vehicle is shorter than 10 m; 1,500 m is the longest freight train run in Europe)")
+    mass_kg: float = Field(gt=0, le=5e7, description="Mass M, kg (up to 50,000 t, beyond the heaviest heavy-haul trains in service)")
     rotating_mass_factor: float = Field(default=1.0, ge=1.0, le=1.5, description="Rotating-mass (inertia) factor, -")
-    max_speed_kmh: float = Field(gt=0, le=600, description="Maximum speed of the train, km/h")
-    max_traction_n: float = Field(gt=0, description="Maximum tractive effort F_max = M·a_dr, N (eq. 4a)")
-    max_power_w: float = Field(gt=0, description="Maximum traction power P_dr, W (eq. 4b)")
-    davis_a_n: float = Field(ge=0, description="Davis A (rolling + bearing resistance), N")
-    davis_b_n_per_mps: float = Field(ge=0, description="Davis B, N/(m/s)")
-    davis_c_n_per_mps2: float = Field(ge=0, description="Davis C (aerodynamic, open air), N/(m/s)²")
-    service_brake_decel_mps2: float = Field(gt=0, le=3, description="Service braking deceleration a_br, m/s²: braking-force limit M·a_br and the planning deceleration of SUMO and of blocking-time theory")
-    emergency_brake_decel_mps2: float = Field(gt=0, le=5, description="Emergency braking deceleration, m/s²")
-    max_brake_power_w: float | None = Field(default=None, gt=0, description="Maximum braking power P_br, W (eq. 4b); none = not limited")
-    max_jerk_mps3: float | None = Field(default=None, gt=0, description="Maximum jerk j_max, m/s³ (eq. 4c); none = not limited")
+    max_speed_kmh: float = Field(ge=10, le=600, description="Maximum speed of the train, km/h (10–600: 600 km/h is above any wheel-rail record)")
+    max_traction_n: float = Field(gt=0, le=1e7, description="Maximum tractive effort F_max = M·a_dr, N (eq. 4a); F_max/M at most 3 m/s² (see MAX_ACCEL_MPS2)")
+    max_power_w: float = Field(gt=0, le=1e8, description="Maximum traction power P_dr, W (eq. 4b); up to 100 MW, five times the most powerful trainsets")
+    davis_a_n: float = Field(ge=0, le=1e6, description="Davis A (rolling + bearing resistance), N (0–1 MN)")
+    davis_b_n_per_mps: float = Field(ge=0, le=1e5, description="Davis B, N/(m/s) (0–100 kN/(m/s))")
+    davis_c_n_per_mps2: float = Field(ge=0, le=1e3, description="Davis C (aerodynamic, open air), N/(m/s)² (0–1,000; long high-speed trains are near 10)")
+    service_brake_decel_mps2: float = Field(gt=0, le=3, description="Service braking deceleration a_br, m/s²: braking-force limit M·a_br and the planning deceleration of SUMO and of blocking-time theory (0 < a ≤ 3 m/s²: adhesion limits service braking)")
+    emergency_brake_decel_mps2: float = Field(gt=0, le=5, description="Emergency braking deceleration, m/s² (0 < a ≤ 5 m/s²: beyond wheel-rail adhesion even with track brakes)")
+    max_brake_power_w: float | None = Field(default=None, gt=0, le=1e8, description="Maximum braking power P_br, W (eq. 4b), up to 100 MW; none = not limited")
+    max_jerk_mps3: float | None = Field(default=None, gt=0, le=20, description="Maximum jerk j_max, m/s³ (eq. 4c), up to 20; none = not limited")
     traction_lag_s: float = Field(default=0.0, ge=0, le=5, description="First-order lag τ of the traction/brake force, s (eq. 1c)")
     uncertainty: UncertaintyBox | None = Field(default=None, description="Parameter intervals (Terlizzi eq. 7)")
 
     @model_validator(mode="after")
     def _consistent(self) -> "RollingStock":
+        if self.max_traction_n / self.mass_kg > MAX_ACCEL_MPS2:
+            raise FieldProblem("max_traction_n", f"max_traction_n / mass_kg = {self.max_traction_n / self.mass_kg:.3g} m/s² exceeds {MAX_ACCEL_MPS2:g} m/s² (no train accelerates faster)")
         if self.emergency_brake_decel_mps2 < self.service_brake_decel_mps2:
-            raise ValueError("emergency_brake_decel_mps2 must not be below service_brake_decel_mps2")
+            raise FieldProblem("emergency_brake_decel_mps2", f"{self.emergency_brake_decel_mps2} m/s² must not be below service_brake_decel_mps2 ({self.service_brake_decel_mps2} m/s²)")
         box = self.uncertainty
         if box is not None:
             nominal = {
@@ -96,7 +102,7 @@ class RollingStock(StrictModel):
             for key, value in nominal.items():
                 iv: Interval = getattr(box, key)
                 if not iv.low - 1e-9 * max(1.0, abs(value)) <= value <= iv.high + 1e-9 * max(1.0, abs(value)):
-                    raise ValueError(f"uncertainty.{key} [{iv.low}, {iv.high}] does not contain the nominal value {value:g}")
+                    raise FieldProblem(f"uncertainty.{key}", f"[{iv.low}, {iv.high}] does not contain the nominal value {value:g}")
         return self
 
     # ---------------------------------------------------------------------------------------

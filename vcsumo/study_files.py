@@ -11,52 +11,71 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
-from pydantic import Field, TypeAdapter, ValidationError
+from pydantic import Field, TypeAdapter, ValidationError, field_validator
 
-from vcsumo.config import StrictModel, field_path, read_yaml
+from vcsumo.config import StrictModel, read_yaml, validation_error
 from vcsumo.errors import InputError
+
+BlockLength = Annotated[float, Field(ge=100, le=50000, description="Block length, m (100 m–50 km, as in line files)")]
+ConvoySize = Annotated[int, Field(ge=1, le=20, description="Trains in a convoy (1–20: longer convoys are not studied)")]
+Step = Annotated[float, Field(gt=0, le=2, description="Simulation step, s (at most 2 s)")]
+Workers = Annotated[int, Field(ge=1, le=512, description="Parallel processes (1–512)")]
 
 
 class _Common(StrictModel):
     line: str = Field(description="Shipped line name or path to a line.yaml (relative to the study file)")
     title: str = ""
     notes: str = ""
-    out: str | None = Field(default=None, description="Results folder (default: a new folder under results/)")
+    out: str | None = Field(
+        default=None,
+        description="Results folder, relative to the current folder, without '..' (default: a new folder under results/); "
+        "a study file cannot send results elsewhere, the --out option can",
+    )
+
+    @field_validator("out")
+    @classmethod
+    def _out_stays_here(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        p = Path(v)
+        if not v.strip() or p.is_absolute() or ".." in p.parts or v.startswith("~") or "\\" in v or "\x00" in v:
+            raise ValueError(f"'{v}' must be a relative folder without '..' (a study file may not write outside the current folder; use --out for that)")
+        return v
 
 
 class CapacityStudy(_Common):
     study: Literal["capacity"]
     train: str | None = None
     controllers: list[str] = Field(default_factory=lambda: ["cbc", "cbf-cbc"])
-    convoy_sizes: list[int] = Field(default_factory=lambda: [1, 2, 3, 4])
+    convoy_sizes: list[ConvoySize] = Field(default_factory=lambda: [1, 2, 3, 4], min_length=1)
     directions: list[Literal["up", "down"]] = Field(default_factory=lambda: ["up", "down"])
     patterns: list[Literal["non-stop", "all-stops"]] | None = None
-    block_length_m: float | None = Field(default=None, gt=0)
-    step_length_s: float = Field(default=0.5, gt=0, le=2)
-    vc_step_length_s: float = Field(default=0.2, gt=0, le=2)
+    block_length_m: BlockLength | None = None
+    step_length_s: Step = 0.5
+    vc_step_length_s: Step = 0.2
     fixed_time_s: float = Field(default=0.0, ge=0, le=120, description="ETCS fixed times (route setting + MA transmission + reaction), s")
-    workers: int | None = Field(default=None, ge=1, description="Parallel processes (default: number of CPUs)")
-    seed: int = 42
+    workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (default: number of CPUs)")
+    seed: int = Field(default=42, ge=0, description="Random seed (not negative)")
 
 
 class HeadwayStudy(_Common):
     study: Literal["headway"]
     regime: Literal["fbs", "mb", "both"] = "both"
     trains: list[str] = Field(default_factory=list)
-    points_km: list[float] | None = None
-    block_length_m: float | None = Field(default=None, gt=0)
-    step_length_s: float = Field(default=0.5, gt=0, le=2)
-    trains_per_run: int = Field(default=2, ge=2)
+    points_km: list[Annotated[float, Field(ge=-100000, le=100000)]] | None = Field(default=None, description="Measuring points, km (the line's chainage)")
+    block_length_m: BlockLength | None = None
+    step_length_s: Step = 0.5
+    trains_per_run: int = Field(default=2, ge=2, le=20, description="Trains released per probe (2–20)")
 
 
 class BatchStudy(_Common):
     study: Literal["batch"]
     timetables: str = Field(description="Glob of timetable files, relative to the repository or the study file")
     regimes: list[Literal["fbs", "mb", "vc"]] = Field(default_factory=lambda: ["fbs", "mb"])
-    seeds: int = Field(default=3, ge=1)
+    seeds: int = Field(default=3, ge=1, le=1000, description="Seeds per timetable and regime (1–1,000)")
     controllers: list[str] = Field(default_factory=list)
     delay_config: str | None = None
-    workers: int | None = Field(default=None, ge=0)
+    workers: int | None = Field(default=None, ge=0, le=512, description="Parallel processes (0: in this process; at most 512)")
     scheduler: str | None = None
 
 
@@ -68,31 +87,91 @@ class JunctionStudy(_Common):
     first: Literal["main", "branch", "both"] = "both"
     junction_signal: Literal["sumo", "braking-curve", "both"] = "braking-curve"
     directions: list[Literal["up", "down"]] = Field(default_factory=lambda: ["up", "down"])
-    offsets_s: list[float] | None = None
-    approach_m: float = Field(default=12000.0, gt=0)
-    window_m: float = Field(default=5000.0, gt=0)
-    block_length_m: float | None = Field(default=None, gt=0)
-    step_length_s: float = Field(default=0.5, gt=0, le=2)
-    vc_step_length_s: float = Field(default=0.2, gt=0, le=2)
-    seed: int = 42
+    offsets_s: list[Annotated[float, Field(ge=-3600, le=3600)]] | None = Field(default=None, description="Release offsets between the services, s (within ±1 h)")
+    approach_m: float = Field(default=12000.0, gt=0, le=200000, description="Main-line release distance before the first junction, m (up to 200 km)")
+    window_m: float = Field(default=5000.0, gt=0, le=50000, description="Measuring window around the junction, m (up to 50 km)")
+    block_length_m: BlockLength | None = None
+    step_length_s: Step = 0.5
+    vc_step_length_s: Step = 0.2
+    seed: int = Field(default=42, ge=0, description="Random seed (not negative)")
 
 
 StudyFile = Annotated[Union[CapacityStudy, HeadwayStudy, BatchStudy, JunctionStudy], Field(discriminator="study")]
 
 
+_KINDS = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy}
+
+
 def load_study(path: str | Path) -> CapacityStudy | HeadwayStudy | BatchStudy | JunctionStudy:
-    """Read and validate a study file; errors name the file and the field."""
+    """Read and validate a study file; errors name the file and the field.
+
+    Besides the fields' own checks, the names a study refers to are resolved before anything runs:
+    the line, the train type(s), the controllers (and their parameter files) and the delay
+    configuration must exist.
+    """
     path = Path(path)
     data = read_yaml(path)
-    if not isinstance(data, dict) or "study" not in data:
+    if data is None:
+        raise InputError(path, None, "the file is empty (expected a mapping with study: capacity, headway, batch or junction)")
+    if not isinstance(data, dict):
+        raise InputError(path, None, f"expected a mapping with study: capacity, headway, batch or junction, got a {type(data).__name__}")
+    if "study" not in data:
         raise InputError(path, "study", "required field is missing (capacity, headway, batch or junction)")
+    kind = data.get("study")
     try:
-        return TypeAdapter(StudyFile).validate_python(data)
+        study = TypeAdapter(StudyFile).validate_python(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = field_path(tuple(x for x in err["loc"] if x not in ("capacity", "headway", "batch", "junction")))
-        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
-        raise InputError(path, loc or None, msg) from None
+        model = _KINDS.get(kind) if isinstance(kind, str) else None
+        raise validation_error(exc, path, model, skip=tuple(_KINDS)) from None
+    check_references(study, path)
+    return study
+
+
+def check_references(study, path: Path) -> None:
+    """The line, trains, controllers and delay configuration named by ``study`` exist (InputError if not)."""
+    from vcsumo.line import resolve_line_path
+
+    base = path.parent
+
+    def rewrap(field: str, fn, *args) -> None:
+        try:
+            fn(*args)
+        except InputError as exc:
+            if exc.path is None:  # an unknown name: the study file's field is to blame
+                raise InputError(path, field, exc.message) from None
+            raise
+
+    rewrap("line", resolve_line_path, _resolve(study.line, base))
+    trains = [study.train] if getattr(study, "train", None) else list(getattr(study, "trains", []) or [])
+    for i, t in enumerate(trains):
+        rewrap("train" if hasattr(study, "train") else f"trains[{i}]", _check_train, t)
+    for i, c in enumerate(getattr(study, "controllers", []) or []):
+        rewrap(f"controllers[{i}]", _check_controller, c)
+    if getattr(study, "delay_config", None):
+        spec = _resolve(study.delay_config, base)
+        if not Path(spec).is_file():
+            raise InputError(path, "delay_config", f"delay configuration '{study.delay_config}' not found (relative to the study file or the current folder)")
+
+
+def _check_train(spec: str) -> None:
+    from vcsumo.rolling_stock import load_rolling_stock
+
+    load_rolling_stock(spec)
+
+
+def _check_controller(spec: str) -> None:
+    """A VC controller name (``cbc``, ``cbf-cbc``, ...), optionally with a parameter set after a colon."""
+    from vcsumo.vc import VC_CONTROLLERS, controllers_dir
+
+    name, _, params = spec.partition(":")
+    if name not in VC_CONTROLLERS:
+        raise InputError(None, None, f"unknown controller '{name}' (choose from {', '.join(VC_CONTROLLERS)}; NAME:PARAMS picks a parameter file)")
+    if params:
+        p = Path(params)
+        found = p.is_file() if p.suffix in (".yaml", ".yml") else (controllers_dir() / f"{params}.yaml").is_file()
+        if not found:
+            avail = ", ".join(sorted(x.stem for x in controllers_dir().glob("*.yaml")))
+            raise InputError(None, None, f"controller parameter set '{params}' not found (available: {avail}; or a path to a .yaml file)")
 
 
 def _resolve(spec: str, base: Path) -> str:

@@ -29,20 +29,41 @@ from vcsumo.units import format_clock, parse_clock
 Clock = str | float | int
 
 
+MAX_CLOCK_S = 7 * 86400.0
+"""Latest time a timetable may name, s after midnight of its first day (a week)."""
+
+
+def _check_clock(v: Clock | None) -> Clock | None:
+    """A time of day (``HH:MM[:SS]``) or seconds: finite, not negative, within a week."""
+    if v is None:
+        return v
+    if isinstance(v, bool):
+        raise ValueError(f"{v} is not a time: write HH:MM, HH:MM:SS or seconds")
+    t = parse_clock(v)
+    if not math.isfinite(t) or not 0 <= t <= MAX_CLOCK_S:
+        raise ValueError(f"{v} is not a time between 0 s and {MAX_CLOCK_S:.0f} s (one week)")
+    return v
+
+
 class StopCall(StrictModel):
     """A stop of a service at a station."""
 
     station: str = Field(description="Station id")
-    dwell_s: float | None = Field(default=None, ge=0, description="Minimum dwell, s (default: the station's)")
+    dwell_s: float | None = Field(default=None, ge=0, le=86400, description="Minimum dwell, s, 0–86,400 (default: the station's)")
     arrival: Clock | None = Field(default=None, description="Scheduled arrival, HH:MM[:SS] or s")
     departure: Clock | None = Field(default=None, description="Scheduled (earliest) departure, HH:MM[:SS] or s")
+
+    @field_validator("arrival", "departure")
+    @classmethod
+    def _clock(cls, v: Clock | None) -> Clock | None:
+        return _check_clock(v)
 
 
 class Repeat(StrictModel):
     """Repeat a service at a fixed interval (ids get a suffix .1, .2, ...)."""
 
     count: int = Field(ge=1, le=1000, description="Number of trains")
-    every_s: float = Field(gt=0, description="Interval between departures, s")
+    every_s: float = Field(ge=1, le=86400, description="Interval between departures, s (1 s–1 day)")
 
 
 class Service(StrictModel):
@@ -60,9 +81,7 @@ class Service(StrictModel):
     @field_validator("departure", "arrival")
     @classmethod
     def _clock(cls, v: Clock | None) -> Clock | None:
-        if v is not None:
-            parse_clock(v)
-        return v
+        return _check_clock(v)
 
 
 class Convoy(StrictModel):
@@ -77,7 +96,8 @@ class Convoy(StrictModel):
 class TimetableFile(StrictModel):
     """A timetable file."""
 
-    name: str = Field(description="Timetable name")
+    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_\-]*$", max_length=64,
+                      description="Timetable name: letters, digits, '_' and '-' (it names results folders, so no '/' or '..')")
     line: str = Field(description="Line the timetable runs on")
     description: str = ""
     sources: dict[str, str] = Field(default_factory=dict)

@@ -65,16 +65,16 @@ class CBFConfig(StrictModel):
 
     name: str = Field(default="cbf", description="Identifier of the parameter set")
     notes: str = Field(default="", description="Provenance and assumptions")
-    safety_distance_m: float = Field(default=1000.0, gt=0, description="Safety distance d, m (Table II)")
-    t_max_s: float = Field(default=8.0, gt=0, description="T^max: longest wait for a leader packet before K_E^F (eq. 18), s (Table II)")
+    safety_distance_m: float = Field(default=1000.0, gt=0, le=50000, description="Safety distance d, m (Table II); at most 50 km, the longest block")
+    t_max_s: float = Field(default=8.0, gt=0, le=600, description="T^max: longest wait for a leader packet before K_E^F (eq. 18), s (Table II); at most 600 s")
     epsilon: float = Field(default=0.98, gt=0, lt=1, description="ε of §V (slightly below one), -")
     packet_loss_probability: float = Field(default=0.01, ge=0, le=1, description="p_loss of Table II, per packet (used for the channel of the reproduction), -")
     lookahead: bool = Field(default=True, description="Check the barrier one control step ahead under the nominal command (sampled-data Algorithm 2)")
     sampled_data_margin: bool = Field(default=True, description="Add the Δt integration margins to b' (false: the paper's continuous formula)")
-    actuation_delay_s: float | None = Field(default=None, ge=0, description="Dead time before the full brake acts, at full traction, s (None: from the follower's force lag and jerk limit and its applied force)")
+    actuation_delay_s: float | None = Field(default=None, ge=0, le=30, description="Dead time (0–30 s) before the full brake acts, at full traction, s (None: from the follower's force lag and jerk limit and its applied force)")
     trust_reported_force: bool = Field(default=True, description="The observation's ego force_n is the force the actuator applies (used only for a follower with a force lag or jerk limit); false: bound it by the recent commands")
     stop_model: Literal["profile", "window"] = Field(default="profile", description="Stopping points of b' on the exact route gradient ('profile') or with the worst grade over a window ahead ('window', the paper's literal σ_sup/σ_inf)")
-    trigger_margin_m: float = Field(default=0.0, ge=0, description="Enforce K_E^F when b ≥ −margin, m (0: the paper's b ≥ 0)")
+    trigger_margin_m: float = Field(default=0.0, ge=0, le=50000, description="Enforce K_E^F when b ≥ −margin, m, 0–50 km (0: the paper's b ≥ 0)")
     brake_without_leader_data: bool = Field(default=False, description="Hold K_E^F until the first leader packet (false: Algorithm 1 starts with the first packet, as in the paper)")
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import heapq
 import math
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field
@@ -38,23 +38,23 @@ class Window(StrictModel):
 class Degradation(Window):
     """A window with its own delay and loss."""
 
-    delay_s: float = Field(default=0.0, ge=0)
-    mean_extra_s: float = Field(default=0.0, ge=0)
-    loss_probability: float = Field(default=0.0, ge=0, le=1)
+    delay_s: float = Field(default=0.0, ge=0, le=3600, description="Extra constant delay in the window, s (0–3,600)")
+    mean_extra_s: float = Field(default=0.0, ge=0, le=3600, description="Mean of an extra exponential delay in the window, s (0–3,600)")
+    loss_probability: float = Field(default=0.0, ge=0, le=1, description="Loss probability per message in the window, 0–1")
 
 
 class ChannelConfig(StrictModel):
     """Channel settings (all times in s)."""
 
     model: Literal["ideal", "constant", "exponential", "empirical"] = "ideal"
-    period_s: float = Field(default=1.0, gt=0, description="Sending period of each train, s")
-    delay_s: float = Field(default=0.0, ge=0, description="Constant (or minimum) delay, s")
-    mean_extra_s: float = Field(default=0.0, ge=0, description="Mean of the exponential extra delay, s")
-    samples_s: list[float] = Field(default_factory=list, description="Empirical delay samples, s")
-    loss_probability: float = Field(default=0.0, ge=0, le=1, description="Independent loss probability per message")
+    period_s: float = Field(default=1.0, ge=0.01, le=60, description="Sending period of each train, s (10 ms–60 s)")
+    delay_s: float = Field(default=0.0, ge=0, le=3600, description="Constant (or minimum) delay, s (0–3,600; a message an hour late is lost)")
+    mean_extra_s: float = Field(default=0.0, ge=0, le=3600, description="Mean of the exponential extra delay, s (0–3,600)")
+    samples_s: list[Annotated[float, Field(ge=0, le=3600)]] = Field(default_factory=list, description="Empirical delay samples, s (each 0–3,600)")
+    loss_probability: float = Field(default=0.0, ge=0, le=1, description="Independent loss probability per message, 0–1 (a probability)")
     outages: list[Window] = Field(default_factory=list, description="Windows without any delivery")
     degradations: list[Degradation] = Field(default_factory=list, description="Windows with worse delay/loss")
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, description="Seed of the channel's random numbers (numpy needs it not negative)")
 
 
 @dataclass(order=True)

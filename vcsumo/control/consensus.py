@@ -95,8 +95,8 @@ class CbcParams(StrictModel):
     delay_compensation: Literal["none", "reference", "sender"] = Field(
         default="reference", description="Add τ_ij·v_0 (reference, eq. 4.3), τ_ij·v_j (sender) or nothing to delayed positions"
     )
-    link_bound_mps2: float | None = Field(default=None, gt=0, description="Δ of eq. 4.4: per-link saturation, m/s² (none: linear)")
-    max_message_age_s: float = Field(default=5.0, gt=0, description="Older messages are ignored (link treated as lost), s")
+    link_bound_mps2: float | None = Field(default=None, gt=0, le=10, description="Δ of eq. 4.4: per-link saturation, m/s², up to 10 (none: linear)")
+    max_message_age_s: float = Field(default=5.0, gt=0, le=600, description="Older messages are ignored (link treated as lost), s (at most 600)")
     speed_limit_gain_per_s: float | None = Field(default=0.5, gt=0, description="u ≤ k·(v_lim − v) keeps the line/train speed limit (none: off), 1/s")
     leader_speed_gain_per_s: float = Field(default=0.3, gt=0, description="P gain when this controller drives a convoy leader, 1/s")
     liu: LiuParams = Field(default_factory=LiuParams)

@@ -97,9 +97,9 @@ def steady_gap_m(
 class SteadyGap(StrictModel):
     """Steady gap policy (eq. 3.1 with the time headway of eq. 4.3)."""
 
-    d_min_m: float = Field(default=50.0, ge=0, description="Safety margin D_safe (standstill/minimum gap), m")
-    headway_s: float = Field(default=0.0, ge=0, description="Constant time headway h, s (0: constant distance)")
-    rbd_brake_decel_mps2: float | None = Field(default=None, gt=0, description="a_b of the relative-braking term of eq. 3.1, m/s² (none: off)")
+    d_min_m: float = Field(default=50.0, ge=0, le=50000, description="Safety margin D_safe (standstill/minimum gap), m (0–50 km)")
+    headway_s: float = Field(default=0.0, ge=0, le=600, description="Constant time headway h, s (0: constant distance; at most 600 s)")
+    rbd_brake_decel_mps2: float | None = Field(default=None, gt=0, le=5, description="a_b of the relative-braking term of eq. 3.1, m/s², 0 < a ≤ 5 (none: off)")
 
     def gap_m(self, speed_mps: float, predecessor_speed_mps: float | None = None) -> float:
         """The steady reference at the given speeds (eq. 3.1), m."""
