@@ -578,3 +578,13 @@ def test_cli_subprocess_no_traceback(in_tmp):
         assert len(lines) == 1 and lines[0].startswith(f"error: {path}") and words in lines[0], proc.stderr
         assert "Traceback" not in proc.stderr + proc.stdout
     assert not (in_tmp / "r").exists() and not (in_tmp / "results").exists() and not (in_tmp / "pwned").exists()
+
+
+def test_cli_unwritable_out_is_one_line(in_tmp, capsys):
+    """A results folder that cannot be created is the user's to fix: exit 2, one line naming it."""
+    from vcsumo.cli import main
+
+    assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "fbs", "--out", "/proc/vcsumo-nope/r"]) == 2
+    cap = capsys.readouterr()
+    lines = cap.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: /proc/vcsumo-nope") and "Traceback" not in cap.err

@@ -359,6 +359,15 @@ def _register_junction() -> None:
 _register_junction()
 
 
+def _register_safety() -> None:
+    from vcsumo.cli_safety import safety_cmd
+
+    study.add_command(safety_cmd)
+
+
+_register_safety()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     try:
@@ -375,6 +384,19 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         console.print("interrupted")
         return 130
+    except OSError as exc:  # a file or folder the user named cannot be read or written (permissions, disk full)
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        console.print(f"error: {where}{exc.strerror or exc}", highlight=False, markup=False, soft_wrap=True)
+        return 2
+    except Exception as exc:  # a bug in vcsumo: one line, the traceback only on request
+        import os
+
+        if os.environ.get("VCSUMO_DEBUG"):
+            raise
+        text = " ".join(str(exc).split())[:500]
+        console.print(f"error: internal error {type(exc).__name__}: {text} (a bug in vcsumo; set VCSUMO_DEBUG=1 for the traceback)",
+                      highlight=False, markup=False, soft_wrap=True)
+        return 1
     return 0
 
 
