@@ -359,6 +359,15 @@ def _register_junction() -> None:
 _register_junction()
 
 
+def _register_safety() -> None:
+    from vcsumo.cli_safety import safety_cmd
+
+    study.add_command(safety_cmd)
+
+
+_register_safety()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     try:

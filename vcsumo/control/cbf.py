@@ -76,6 +76,7 @@ class CBFConfig(StrictModel):
     stop_model: Literal["profile", "window"] = Field(default="profile", description="Stopping points of b' on the exact route gradient ('profile') or with the worst grade over a window ahead ('window', the paper's literal σ_sup/σ_inf)")
     trigger_margin_m: float = Field(default=0.0, ge=0, le=50000, description="Enforce K_E^F when b ≥ −margin, m, 0–50 km (0: the paper's b ≥ 0)")
     brake_without_leader_data: bool = Field(default=False, description="Hold K_E^F until the first leader packet (false: Algorithm 1 starts with the first packet, as in the paper)")
+    position_error_m: float = Field(default=0.0, ge=0, le=100, description="Bound e_s of each train's position error, m (0–100 m); the barrier keeps d + 2·e_s between measured positions (Felez eq. 9), so the true gap stays ≥ d")
 
 
 def load_cbf_config(path: str | Path) -> CBFConfig:
@@ -133,7 +134,7 @@ class BarrierModel:
         self.follower = RobustProxies(follower, profile)
         self.cfg = config
         self.leader_length_m = leader.length_m
-        self.d_m = config.safety_distance_m
+        self.d_m = config.safety_distance_m + 2.0 * config.position_error_m  # Felez eq. 9: d_min = d0 + 2·e_s
         self.profile_mode = config.stop_model == "profile"
         self.stops_leader = StopIntegral(profile, leader.length_m)
         self.stops_follower = StopIntegral(profile, follower.length_m)

@@ -1,0 +1,72 @@
+"""``vcsumo study safety``: the Monte Carlo safety campaign (:mod:`vcsumo.studies.safety`).
+
+A thin command in the style of :mod:`vcsumo.cli`: build and validate the campaign parameters,
+run (or resume) the campaign with a progress bar, write the report, print the summary table and
+whether the bar is met.  :mod:`vcsumo.cli` registers it under the ``study`` group.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import time
+from pathlib import Path
+
+import click
+from pydantic import ValidationError
+
+from vcsumo.errors import InputError
+
+
+def _csv(value: str) -> list[str]:
+    return [x.strip() for x in value.split(",") if x.strip()]
+
+
+@click.command("safety")
+@click.option("--scenarios", type=int, default=1000, show_default=True, help="Number of seeded random scenarios")
+@click.option("--lines", default="firenze_bologna,milano_bologna,hcmc_line1", show_default=True, help="Lines the scenarios are drawn on (names or line.yaml paths), comma-separated")
+@click.option("--controllers", default="mpc,cbc,cbf-mpc,cbf-cbc", show_default=True, help="Controllers (NAME or NAME:PARAMS), comma-separated")
+@click.option("--seed", type=int, default=2026, show_default=True, help="Campaign seed (scenario k is seeded with (seed, k))")
+@click.option("--workers", type=int, default=None, help="Parallel processes (default: number of CPUs; 1 = in this process)")
+@click.option("--step-s", type=float, default=0.2, show_default=True, help="Control and integration step, s")
+@click.option("--control-period-s", type=float, default=0.4, show_default=True, help="Period of the nominal controllers (ATO cycle), s")
+@click.option("--followers-max", type=int, default=2, show_default=True, help="Largest number of followers behind the leader")
+@click.option("--kinds", default="cruise,forming,merge,split", show_default=True, help="Scenario kinds, comma-separated")
+@click.option("--loss-max", type=float, default=0.5, show_default=True, help="Largest packet-loss probability")
+@click.option("--delay-max-s", type=float, default=1.0, show_default=True, help="Largest constant channel delay, s")
+@click.option("--mean-extra-max-s", type=float, default=2.0, show_default=True, help="Largest mean exponential extra delay, s")
+@click.option("--outage-max-s", type=float, default=30.0, show_default=True, help="Longest communication outage, s")
+@click.option("--position-error-max-m", type=float, default=1.0, show_default=True, help="Largest odometry error bound e_s (Felez eq. 9), m")
+@click.option("--cbf", "cbf_config", default=None, help="CBF parameter file (controllers/<name>.yaml or a path; default: cbf)")
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (re-running with the same --out resumes)")
+def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers: int | None, step_s: float, control_period_s: float, followers_max: int,
+               kinds: str, loss_max: float, delay_max_s: float, mean_extra_max_s: float, outage_max_s: float, position_error_max_m: float,
+               cbf_config: str | None, out: Path | None) -> None:
+    """Monte Carlo safety campaign: leader emergency brakes, lossy delayed channel, outages, uncertain trains, odometry errors."""
+    from vcsumo.cli import _print_table, _progress, out_console
+    from vcsumo.studies.safety import SafetyCampaign, bar_met, run_safety_campaign, summarize_safety, write_safety_report
+
+    try:
+        cfg = SafetyCampaign(scenarios=scenarios, lines=_csv(lines), controllers=_csv(controllers), seed=seed, step_s=step_s, control_period_s=control_period_s,
+                             followers_max=followers_max, kinds=_csv(kinds), loss_max=loss_max, delay_max_s=delay_max_s, mean_extra_max_s=mean_extra_max_s,
+                             outage_max_s=outage_max_s, position_error_max_m=position_error_max_m, cbf_config=cbf_config)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise InputError(None, "--" + str(err["loc"][0]).replace("_", "-"), err["msg"]) from None
+    if workers is not None and workers < 1:
+        raise InputError(None, "--workers", "must be at least 1")
+    n_workers = workers if workers is not None else (os.cpu_count() or 1)
+    if out is None:
+        out = Path("results") / f"safety-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    t0 = time.perf_counter()
+    with _progress() as prog:
+        task = prog.add_task(f"safety {cfg.scenarios} scenarios × {len(cfg.controllers)} controllers", total=1.0)
+        df = run_safety_campaign(cfg, out, workers=n_workers, progress=lambda d, t: prog.update(task, completed=d / t if t else 1.0))
+    summary = summarize_safety(df)
+    write_safety_report(out, cfg, df, summary, time.perf_counter() - t0)
+    _print_table(summary, f"safety campaign — {cfg.scenarios} scenarios", ["controller", "supervised", "scenarios", "failed_runs", "scenarios_with_violation",
+                 "gap_violations", "collisions", "min_gap_margin_m", "max_true_barrier_m", "emergency_activations_mean", "time_lost_s_mean"])
+    met = bar_met(summary, min(cfg.scenarios, 1000))
+    out_console.print(("bar met" if met else "bar NOT met") + ": CBF-supervised controllers have 0 gap violations and 0 collisions"
+                      + ("" if met else " (see the table)") + f" over {cfg.scenarios} scenarios")
+    out_console.print(f"wrote {out / 'safety.csv'} and {out / 'report'}")

@@ -1,0 +1,45 @@
+"""Figures of a safety campaign, drawn from its CSVs only (no simulation needed to redraw them)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+
+def plot_safety(runs_csv: Path, path: Path) -> None:
+    """Left: the smallest gap margin (min gap − minimum safe gap) of every run, per controller
+    (symmetric-log axis; below zero is a violation). Right: share of scenarios with a violation
+    and with a collision, per controller."""
+    df = pd.read_csv(runs_csv, dtype={"error": str}, keep_default_na=False)
+    df = df[df["error"] == ""]
+    ctrls = list(dict.fromkeys(df["controller"]))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [3, 2]})
+    data = [pd.to_numeric(df.loc[df["controller"] == c, "min_gap_margin_m"]).to_numpy() for c in ctrls]
+    if ctrls:
+        ax1.boxplot(data, tick_labels=ctrls, whis=(0, 100), showfliers=False)
+        rng = np.random.default_rng(0)
+        for k, d in enumerate(data, start=1):
+            ax1.scatter(k + rng.uniform(-0.18, 0.18, d.size), d, s=4, alpha=0.35, color="tab:red" if np.any(d < 0) else "tab:blue")
+    ax1.axhline(0.0, color="k", lw=0.8)
+    ax1.set_yscale("symlog", linthresh=10.0)
+    ax1.set_ylabel("min gap − minimum safe gap, m")
+    ax1.set_title(f"gap margin per run ({len(df)} runs)")
+    viol = [float((pd.to_numeric(df.loc[df["controller"] == c, "gap_violations"]) > 0).mean()) for c in ctrls]
+    coll = [float((pd.to_numeric(df.loc[df["controller"] == c, "collisions"]) > 0).mean()) for c in ctrls]
+    x = np.arange(len(ctrls))
+    ax2.bar(x - 0.2, viol, 0.4, label="with a gap violation")
+    ax2.bar(x + 0.2, coll, 0.4, label="with a collision")
+    ax2.set_xticks(x, ctrls)
+    ax2.set_ylim(0, 1)
+    ax2.set_ylabel("share of scenarios")
+    ax2.legend(fontsize=8)
+    ax2.set_title("violations and collisions")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,758 @@
+"""Monte Carlo safety campaign: seeded random VC scenarios on the shipped lines, every controller.
+
+``vcsumo study safety`` draws ``scenarios`` seeded scenarios (:func:`draw_scenario`) and runs each
+of them once per controller (``mpc``, ``cbc``, ``cbf-mpc``, ``cbf-cbc`` by default) in the offline
+closed loop (no SUMO): every train is a :class:`~vcsumo.plant.TrainPlant` — the train model
+shared with the controllers and the supervisor (Felez eq. 1, force lag, jerk limit) — integrated
+with its *true* parameters drawn inside the rolling stock's uncertainty box or at one of its
+corners (Terlizzi eq. 7), on the line's real gradient, tunnel and speed-limit profile.
+
+What a scenario draws (one seeded generator per scenario, so a scenario is the same for every
+controller and does not depend on how many scenarios are run):
+
+* a line, a direction and a kind:
+
+  - ``cruise`` — the convoy runs coupled at the controller's own spacing (× 1.0–1.3);
+  - ``forming`` — the followers start 2–5 times that spacing behind and up to 10 m/s faster, so the
+    convoy is still forming when the leader brakes;
+  - ``merge`` — at one of the line's junctions: the first follower has just come off the branch
+    at the diverging speed, admitted by the interlocking at its absolute braking distance plus
+    its minimum safe gap (× 1.0–1.3), behind a leader on the trunk;
+  - ``split`` — the leader leaves the trunk at a junction (it brakes for the turnout's diverging
+    speed) while the followers go straight on; the pair is watched until the leader's rear has
+    cleared the junction;
+
+* the leader's cruise speed (30–100 % of the line speed there) and the time of its **emergency
+  brake** (full brake of its true parameters, held to a stop): 10–120 s (cruise), 5–120 s
+  (forming), 0–120 s (merge), around its arrival at the turnout (split);
+* 1..``followers_max`` followers;
+* the channel (Terlizzi §VII): constant delay 0–``delay_max_s`` + exponential extra delay of mean
+  0–``mean_extra_max_s``, independent loss 0–``loss_max``, and with probability
+  ``outage_probability`` an outage of 1–``outage_max_s`` s (longer outages trip T^max, eq. 18);
+* every train's true parameters (at a box corner with probability ``corner_probability``);
+* the position error of every train's odometry, bounded by e_s drawn in 0–``position_error_max_m``
+  (Felez eq. 9: a bias and a noise, each within ±e_s/2); the controllers and the supervisor see
+  measured positions (their own, in the messages, and the on-board sensed gap), the safety
+  bookkeeping uses the true ones.
+
+Per scenario and controller one row of ``safety.csv`` (:data:`SAFETY_COLUMNS`): the minimum true
+front-to-rear gap, the controller's minimum safe gap (d_min of its parameter file; for a
+CBF-supervised controller the CBF safety distance d, which the barrier protects: b'' ≤ 0 of eq.
+15b), gap violations (the gap falling below the minimum safe gap), collisions (gap ≤ 0),
+emergency activations (rising edges of an emergency command), for CBF-supervised controllers the
+largest *true* barrier b(x) (eq. 15 on the true states; Theorem VI.1 says it stays ≤ 0), and the
+time lost: how much later than an unhindered run from its initial state each follower is at the
+leader's emergency brake (mean over followers) — what supervision and communication faults cost
+in normal running.
+
+Unsupervised controllers run without any safety filter (in the SUMO loop every controller also
+has the relative-braking guard of :mod:`vcsumo.vc`); their violation rates are the baseline the
+CBF supervisor is measured against.
+
+Rows are appended to ``safety.csv`` as scenarios finish (one whole line at a time), so an
+interrupted campaign keeps its finished scenarios and re-running the same command resumes it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+from pydantic import Field, field_validator
+
+from vcsumo.config import StrictModel
+from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
+from vcsumo.control.cbf import barrier_from_stops
+from vcsumo.control.channel import Channel, ChannelConfig, Window
+from vcsumo.control.faults import FaultStage
+from vcsumo.control.proxies import BoxBounds, sample_params
+from vcsumo.dynamics import TrainParams, brake_force_limit, gradient_force, running_resistance
+from vcsumo.errors import InputError, VcsumoError
+from vcsumo.plant import PlantState, TrainPlant
+from vcsumo.rolling_stock import RollingStock, load_rolling_stock
+from vcsumo.route_profile import RouteProfile
+from vcsumo.running_time import unhindered_run
+
+SAFETY_CONTROLLERS = ("mpc", "cbc", "cbf-mpc", "cbf-cbc")
+KINDS = ("cruise", "forming", "merge", "split")
+
+SAFETY_COLUMNS = [
+    "key", "scenario", "controller", "supervised", "line", "direction", "kind", "followers", "km_start",
+    "leader_speed_mps", "brake_time_s", "delay_s", "mean_extra_delay_s", "loss_probability", "outage_s",
+    "position_error_m", "corner_trains", "initial_gap_m", "safe_gap_m", "min_gap_m", "min_gap_margin_m",
+    "gap_violations", "collisions", "emergency_activations", "emergency_time_s", "max_true_barrier_m",
+    "time_lost_s", "simulated_s", "wall_time_s", "error",
+]
+
+
+class SafetyCampaign(StrictModel):
+    """Parameters of a safety campaign (``vcsumo study safety`` options or a study file)."""
+
+    lines: list[str] = Field(default_factory=lambda: ["firenze_bologna", "milano_bologna", "hcmc_line1"], min_length=1, description="Shipped line names or line.yaml paths the scenarios are drawn on")
+    controllers: list[str] = Field(default_factory=lambda: list(SAFETY_CONTROLLERS), min_length=1, description="Controllers (mpc, cbc, cbf-mpc, cbf-cbc, cbf-cruise; NAME:PARAMS picks a parameter file)")
+    scenarios: int = Field(default=1000, ge=1, le=1_000_000, description="Number of scenarios, -")
+    seed: int = Field(default=2026, ge=0, description="Campaign seed; scenario k uses the generator seeded with (seed, k)")
+    step_s: float = Field(default=0.2, gt=0, le=1.0, description="Control and integration step, s")
+    followers_max: int = Field(default=2, ge=1, le=3, description="Largest number of followers behind the leader, -")
+    kinds: list[str] = Field(default_factory=lambda: list(KINDS), min_length=1, description="Scenario kinds drawn (cruise, forming, merge, split; merge/split only on lines with junctions)")
+    channel_period_s: float = Field(default=0.5, gt=0, le=5.0, description="Message period of every train, s")
+    delay_max_s: float = Field(default=1.0, ge=0, le=30.0, description="Largest constant part of the channel delay, s")
+    mean_extra_max_s: float = Field(default=2.0, ge=0, le=30.0, description="Largest mean of the exponential extra delay, s")
+    loss_max: float = Field(default=0.5, ge=0, lt=1.0, description="Largest independent packet-loss probability, -")
+    outage_probability: float = Field(default=0.3, ge=0, le=1, description="Probability of one outage in a scenario, -")
+    outage_max_s: float = Field(default=30.0, ge=1.0, le=600.0, description="Longest outage, s")
+    corner_probability: float = Field(default=0.3, ge=0, le=1, description="Probability that a train's true parameters sit at a corner of its uncertainty box, -")
+    position_error_max_m: float = Field(default=1.0, ge=0, le=50.0, description="Largest bound e_s of the odometry error (Felez eq. 9), m")
+    control_period_s: float = Field(default=0.4, gt=0, le=2.0, description="Period of the nominal controllers (the ATO cycle; the CBF supervisor runs every step), s")
+    max_duration_s: float = Field(default=900.0, gt=0, le=7200.0, description="Longest simulated time of a scenario, s")
+    cbf_config: str | None = Field(default=None, description="CBF parameter file (default controllers/cbf.yaml)")
+
+    @field_validator("kinds")
+    @classmethod
+    def _kinds(cls, v: list[str]) -> list[str]:
+        bad = [k for k in v if k not in KINDS]
+        if bad:
+            raise ValueError(f"unknown scenario kind(s) {bad} (choose from {', '.join(KINDS)})")
+        return v
+
+    def scenario_hash(self) -> str:
+        """Hash of everything that shapes the scenarios and their runs (not their number or the controllers)."""
+        d = self.model_dump(exclude={"scenarios", "controllers"})
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+
+
+# -------------------------------------------------------------------------------------------
+# Routes
+
+
+@dataclass(frozen=True)
+class Junction:
+    name: str
+    s_m: float
+    """Position of the turnout on the trunk route, m."""
+    diverging_speed_mps: float
+
+
+@dataclass
+class LineRoute:
+    line: str
+    direction: str
+    stock: RollingStock
+    profile: RouteProfile
+    junctions: list[Junction]
+
+
+@lru_cache(maxsize=None)
+def line_route(line_spec: str, direction: str) -> LineRoute:
+    """The line's main track in ``direction`` as a route profile, its default train and junctions (cached per process)."""
+    from vcsumo.line import load_line
+    from vcsumo.topology import build_topology
+
+    line = load_line(line_spec)
+    topo = build_topology(line)
+    profile = RouteProfile.from_edges(topo, topo.track_for("main", direction).edges)
+    junctions = []
+    for br in line.data.branches:
+        try:
+            s = profile.s_of("main", br.junction_km)
+        except KeyError:
+            continue
+        junctions.append(Junction(br.junction_name or br.id, s, br.diverging_speed_kmh / 3.6))
+    return LineRoute(line.name, direction, load_rolling_stock(line.data.default_train), profile, junctions)
+
+
+def capped_profile(profile: RouteProfile, v_cap_mps: float, point_limits: list[tuple[float, float]] = ()) -> RouteProfile:
+    """The same route with every limit capped at ``v_cap_mps`` and extra turnout limits (for target speeds)."""
+    from dataclasses import replace
+
+    return replace(profile, speeds_ms=np.minimum(profile.speeds_ms, v_cap_mps), point_limits=list(profile.point_limits) + list(point_limits))
+
+
+# -------------------------------------------------------------------------------------------
+# Scenarios
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """One drawn scenario (the same for every controller)."""
+
+    index: int
+    id: str
+    line: str
+    direction: str
+    kind: str
+    followers: int
+    leader_start_m: float
+    leader_speed_mps: float
+    follower_speed_mps: float
+    """Initial speed of the first follower (others start at the leader's speed), m/s."""
+    brake_time_s: float
+    spacing_factor: float
+    """Initial gap = factor × the controller's coupled spacing (cruise, forming) or admission gap (merge)."""
+    junction_s_m: float
+    diverging_speed_mps: float
+    delay_s: float
+    mean_extra_delay_s: float
+    loss_probability: float
+    outage: tuple[float, float] | None
+    corners: tuple[bool, ...]
+    position_error_m: float
+    seed: int
+
+
+def _kinds_for(cfg: SafetyCampaign, route: LineRoute) -> list[str]:
+    return [k for k in cfg.kinds if k in ("cruise", "forming") or route.junctions]
+
+
+def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
+    """Scenario ``index`` of the campaign (seeded by (seed, index); see the module doc)."""
+    rng = np.random.default_rng([cfg.seed, index])
+    line = cfg.lines[int(rng.integers(len(cfg.lines)))]
+    direction = ("up", "down")[int(rng.integers(2))]
+    route = line_route(line, direction)
+    kinds = _kinds_for(cfg, route) or ["cruise"]
+    kind = kinds[int(rng.integers(len(kinds)))]
+    prof, stock = route.profile, route.stock
+    n_f = int(rng.integers(1, cfg.followers_max + 1))
+    v_train = stock.params().max_speed_ms
+    j_s, v_div = math.nan, math.nan
+    follower_speed = math.nan
+    if kind in ("merge", "split"):
+        j = route.junctions[int(rng.integers(len(route.junctions)))]
+        j_s, v_div = j.s_m, min(j.diverging_speed_mps, v_train)
+    if kind == "split":
+        # the leader is 1-4 km before the turnout at up to its line speed
+        s_lead = max(j_s - float(rng.uniform(1000.0, 4000.0)), 6000.0)
+        v_line = min(prof.min_speed_over(s_lead, j_s), v_train)
+        v0 = float(rng.uniform(max(v_div, 0.3 * v_line), v_line)) if v_line > v_div else v_line
+        t_arrive = (j_s - s_lead) / max(v0, 1.0)
+        t_brake = float(rng.uniform(0.3 * t_arrive, t_arrive + 30.0))
+        follower_speed = v0
+    elif kind == "merge":
+        # the leader has passed the junction by 0-2 km; the first follower runs off the branch at the diverging speed
+        s_lead = j_s + float(rng.uniform(stock.length_m + 100.0, 2000.0))
+        v_line = min(prof.speed_limit_at(s_lead), v_train)
+        v0 = float(rng.uniform(0.3 * v_line, v_line))
+        follower_speed = min(v_div, prof.speed_limit_at(j_s))
+        t_brake = float(rng.uniform(0.0, 120.0))
+    else:
+        lo, hi = 8000.0, prof.length_m - 30000.0
+        if hi <= lo:
+            lo, hi = 0.25 * prof.length_m, 0.5 * prof.length_m
+        s_lead = float(rng.uniform(lo, hi))
+        v_line = min(prof.speed_limit_at(s_lead), v_train)
+        v0 = float(rng.uniform(0.3 * v_line, v_line))
+        follower_speed = v0 if kind == "cruise" else min(v0 + float(rng.uniform(0.0, 10.0)), v_line)
+        t_brake = float(rng.uniform(10.0, 120.0) if kind == "cruise" else rng.uniform(5.0, 120.0))
+    factor = float(rng.uniform(2.0, 5.0) if kind == "forming" else rng.uniform(1.0, 1.3))
+    outage = None
+    if rng.random() < cfg.outage_probability:
+        start = float(rng.uniform(0.0, t_brake + 30.0))
+        outage = (start, start + float(rng.uniform(1.0, cfg.outage_max_s)))
+    return ScenarioSpec(
+        index=index, id=f"s{index:05d}", line=route.line, direction=direction, kind=kind, followers=n_f, leader_start_m=s_lead, leader_speed_mps=v0,
+        follower_speed_mps=follower_speed, brake_time_s=t_brake, spacing_factor=factor, junction_s_m=j_s, diverging_speed_mps=v_div,
+        delay_s=float(rng.uniform(0.0, cfg.delay_max_s)), mean_extra_delay_s=float(rng.uniform(0.0, cfg.mean_extra_max_s)),
+        loss_probability=float(rng.uniform(0.0, cfg.loss_max)), outage=outage,
+        corners=tuple(bool(rng.random() < cfg.corner_probability) for _ in range(n_f + 1)),
+        position_error_m=float(rng.uniform(0.0, cfg.position_error_max_m)), seed=int(rng.integers(2**31 - 1)),
+    )
+
+
+# -------------------------------------------------------------------------------------------
+# Controllers
+
+
+@dataclass
+class _Follower:
+    controller: object
+    supervisor: object | None
+    safe_gap_m: float
+    coupled_gap: Callable[[float], float]
+    """The controller's own spacing at a common speed v, m."""
+
+
+def _param_file(spec: str | None, default: str) -> Path:
+    from vcsumo.vc import _param_path
+
+    return _param_path(spec, default)
+
+
+@lru_cache(maxsize=None)
+def _mpc_instance(line: str, direction: str, params_spec: str | None, step_s: float, slot: int):
+    """One follower NMPC per route and process: its DP profile and terminal set (eq. 10, 12m) are
+    computed once for the route and reused; :meth:`reset` clears the warm start between scenarios.
+    ``slot`` is the follower's place in the convoy (each follower has its own instance)."""
+    from vcsumo.control.mpc import FollowerMPC, load_mpc_settings
+
+    route = line_route(line, direction)
+    settings = load_mpc_settings(_param_file(params_spec, "mpc"))
+    # the follower's braking assumption of 12m cannot exceed what the train nominally has (the metro
+    # value of mpc.yaml, 0.75 m/s², is above the ETR1000's 0.65 m/s²)
+    a_f = min(settings.a_follower_mps2, route.stock.service_brake_decel_mps2)
+    settings = settings.model_copy(update={"step_s": step_s, "a_follower_mps2": a_f})
+    ctrl = FollowerMPC(route.stock.params(), settings, route_end_m=route.profile.length_m)
+    ctrl.route_data(route.profile)
+    return ctrl
+
+
+def make_follower(controller: str, route: LineRoute, step_s: float, cbf_config: str | None, predecessor: str = "T0", slot: int = 1,
+                  position_error_m: float = 0.0) -> _Follower:
+    """Nominal controller, CBF supervisor (``cbf-`` names), minimum safe gap and coupled spacing."""
+    from vcsumo.vc import parse_controller
+
+    name, params_spec = parse_controller(controller)
+    base = name.removeprefix("cbf-")
+    stock = route.stock
+    if base == "cbc":
+        from vcsumo.control.consensus import ConsensusController, load_cbc_params
+
+        prm = load_cbc_params(_param_file(params_spec, "cbc"))
+        ctrl: object = ConsensusController(prm)
+        d_min = prm.gap.d_min_m
+        coupled = lambda v: prm.gap.gap_m(v, v)  # noqa: E731 - eq. 3.1 + constant time headway
+    elif base == "mpc":
+        ctrl = _mpc_instance(route.line, route.direction, params_spec, step_s, slot)
+        ctrl.reset()
+        s = ctrl.settings
+        d_min = s.d_min_m
+
+        def coupled(v: float) -> float:  # the relative braking distance of constraint 12m, at least d_des
+            rel = v * v / (2.0 * s.a_follower_mps2) - v * v / (2.0 * s.a_leader_mps2)
+            return max(s.d_des_m, d_min + max(rel, 0.0))
+    elif base == "cruise":
+        from vcsumo.control.cbf import load_cbf_config
+        from vcsumo.control.cruise import SwitchedCruiseController, load_cruise_config
+
+        cbf_cfg = load_cbf_config(_param_file(cbf_config, "cbf"))
+        ctrl = SwitchedCruiseController(stock, stock, load_cruise_config(_param_file(params_spec, "cruise_terlizzi2024")), cbf_cfg, leader_id=predecessor)
+        d_min = cbf_cfg.safety_distance_m
+        coupled = lambda v: d_min  # noqa: E731
+    else:  # pragma: no cover - parse_controller checks names
+        raise VcsumoError(f"unknown controller {controller}")
+    sup = None
+    if name.startswith("cbf-"):
+        from vcsumo.control.cbf import CBFSupervisor, load_cbf_config
+
+        cbf_cfg = load_cbf_config(_param_file(cbf_config, "cbf"))
+        if position_error_m > cbf_cfg.position_error_m:  # the supervisor knows the bound of the odometry error (Felez eq. 9)
+            cbf_cfg = cbf_cfg.model_copy(update={"position_error_m": position_error_m})
+        sup = CBFSupervisor(stock, stock, cbf_cfg, record=False)
+        d_min = max(d_min, sup.cfg.safety_distance_m)
+    return _Follower(ctrl, sup, d_min, coupled)
+
+
+def barrier_gap_m(sup, profile: RouteProfile, s_m: float, v_mps: float, length_m: float) -> float:
+    """Smallest front-to-rear gap at which two trains at speed v have a robust barrier b ≤ −1 m (eq. 15), m."""
+    model = sup.model_for(profile)
+
+    def b(gap: float) -> float:
+        return model.value(s_m, v_mps, s_m - length_m - gap, v_mps)[0]
+
+    lo, hi = 0.0, sup.cfg.safety_distance_m
+    while b(hi) > -1.0:
+        lo, hi = hi, 2.0 * hi
+        if hi > 1e6:
+            return hi
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if b(mid) > -1.0 else (lo, mid)
+    return hi
+
+
+class SampledController:
+    """A nominal controller computed every ``period_s`` (the ATO cycle) inside a faster loop.
+
+    Between two computations the command is held; the NMPC applies its planned input u_k of the
+    step it is in (eq. 12, the plan's ``commands_n``) instead.  The safety supervisor downstream
+    still checks every step.
+    """
+
+    def __init__(self, controller, period_s: float):
+        self.controller = controller
+        self.period_s = period_s
+        self._held: Command | None = None
+        self._next_s = -math.inf
+
+    def make_step(self, obs: Observation) -> Command:
+        if self._held is None or obs.time_s >= self._next_s - 1e-9:
+            self._held = self.controller.make_step(obs)
+            self._next_s = obs.time_s + self.period_s
+            return self._held
+        c = self._held
+        sol = getattr(self.controller, "last_solution", None)
+        if sol is not None and sol.ok and not c.infeasible and len(sol.commands_n) > 1:
+            k = int(np.searchsorted(sol.times_s, obs.time_s + 1e-9, side="right")) - 1
+            k = min(max(k, 0), len(sol.commands_n) - 1)
+            return Command(force_n=float(sol.commands_n[k]), mode=c.mode, emergency=c.emergency, info=c.info)
+        return c
+
+
+# -------------------------------------------------------------------------------------------
+# One run
+
+
+def _steady_force(p: TrainParams, v: float, profile: RouteProfile, s: float) -> float:
+    return float(running_resistance(p, v, profile.tunnel_factor_at(s)) + gradient_force(p, profile.mean_gradient(s, p.length_m)))
+
+
+@dataclass
+class _Run:
+    t: np.ndarray
+    s: np.ndarray
+    v: np.ndarray
+
+
+def _unhindered(p: TrainParams, profile: RouteProfile, s0: float, v0: float, t_max: float) -> _Run:
+    df = unhindered_run(p, profile, dt=0.5, s0=s0, v0=v0, stop_at_end=True, t_max=t_max)
+    return _Run(df.time_s.to_numpy(), df.s_m.to_numpy(), df.speed_mps.to_numpy())
+
+
+def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> dict:
+    """Run one scenario with one controller; return its row of ``safety.csv``."""
+    t_wall = time.perf_counter()
+    route = line_route(spec.line, spec.direction)
+    prof, stock = route.profile, route.stock
+    dt = cfg.step_s
+    nom = stock.params()
+    rng = np.random.default_rng(spec.seed)
+    n = spec.followers + 1
+    true_params = [sample_params(stock, rng, corner=c) for c in spec.corners]
+    ids = [f"T{k}" for k in range(n)]
+    followers = [make_follower(controller, route, dt, cfg.cbf_config, ids[k - 1], k, cfg.position_error_max_m) for k in range(1, n)]
+    safe_gap = followers[0].safe_gap_m
+    models = [f.supervisor.model_for(prof) if f.supervisor is not None else None for f in followers]
+    d_cbf = followers[0].supervisor.cfg.safety_distance_m if followers[0].supervisor is not None else math.nan
+    stages = [FaultStage(SampledController(f.controller, cfg.control_period_s), nom, f.supervisor, ids[k + 1]) for k, f in enumerate(followers)]
+    L = stock.length_m
+
+    # initial spacing of every follower
+    def spacing(k: int, v: float) -> float:
+        f = followers[k - 1]
+        g = f.coupled_gap(v)
+        if f.supervisor is not None:
+            g = max(g, barrier_gap_m(f.supervisor, prof, spec.leader_start_m, v, L))
+        return max(g, f.safe_gap_m + 1.0)
+
+    v_l0 = spec.leader_speed_mps
+    speeds = [v_l0] + [spec.follower_speed_mps] + [v_l0] * (n - 2) if n > 1 else [v_l0]
+    if spec.kind == "merge":
+        speeds = [v_l0] + [spec.follower_speed_mps] * (n - 1)
+    positions = [spec.leader_start_m]
+    gaps0 = []
+    for k in range(1, n):
+        v = speeds[k]
+        if spec.kind == "merge" and k == 1:
+            # admitted by the interlocking: absolute braking distance at the nominal brake + the minimum safe gap
+            g = spec.spacing_factor * (v * v / (2.0 * nom.service_brake_decel_mps2) + followers[0].safe_gap_m + 1.0)
+            g = max(g, positions[0] - L - spec.junction_s_m + 1.0)  # the follower is at or before the turnout
+        elif spec.kind == "merge":
+            g = spacing(k, v) * 1.05
+        else:
+            g = spec.spacing_factor * spacing(k, max(v, speeds[k - 1])) if (k == 1 or spec.kind != "forming") else spacing(k, v) * 1.05
+        gaps0.append(g)
+        positions.append(positions[-1] - L - g)
+    if positions[-1] < L + 10.0:
+        shift = L + 10.0 - positions[-1]
+        positions = [x + shift for x in positions]
+
+    # the leader's target speed: its unhindered run capped at its cruise speed (and the turnout for a split)
+    plims = [(spec.junction_s_m, spec.diverging_speed_mps)] if spec.kind == "split" else []
+    lead_prof = capped_profile(prof, max(v_l0, 1.0), plims)
+    horizon = cfg.max_duration_s + 60.0
+    lead_run = _unhindered(nom, lead_prof, positions[0], v_l0, horizon)
+    cap_f = capped_profile(prof, max(max(speeds), 1.0))
+    free_runs = [_unhindered(nom, cap_f, positions[k], speeds[k], horizon) for k in range(1, n)]
+
+    plants = [TrainPlant(true_params[k], PlantState(positions[k], speeds[k], _steady_force(true_params[k], speeds[k], prof, positions[k]), 0.0), prof) for k in range(n)]
+    outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
+    channel = Channel(ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
+                                    loss_probability=spec.loss_probability, outages=outages, seed=spec.seed))
+    e_s = spec.position_error_m
+    bias = rng.uniform(-0.5 * e_s, 0.5 * e_s, size=n)
+    convoy = tuple(ids)
+    min_gap = math.inf
+    violations = collisions = emergencies = 0
+    armed = [True] * n
+    in_em = [False] * n
+    em_time = 0.0
+    max_b = -math.inf
+    lost: list[float] = []
+    steps = int(math.ceil(cfg.max_duration_s / dt))
+    rest_since = None
+    plan_cache: tuple | None = None
+    t = 0.0
+    error = ""
+    split_done = False
+    for k in range(steps + 1):
+        t = k * dt
+        xs = [pl.x for pl in plants]
+        meas = [xs[i].s_m + bias[i] + rng.uniform(-0.5 * e_s, 0.5 * e_s) for i in range(n)]
+        # safety bookkeeping on the true states
+        for i in range(1, n):
+            if i == 1 and split_done:
+                continue
+            gap = xs[i - 1].s_m - L - xs[i].s_m
+            min_gap = min(min_gap, gap)
+            if gap < safe_gap - 1e-6:
+                if armed[i]:
+                    violations += 1
+                    armed[i] = False
+            else:
+                armed[i] = True
+            if gap <= 0.0:
+                collisions += 1
+                error = "collision"
+            if models[i - 1] is not None:
+                # eq. 15 on the true states, the follower's dead time from the force it really applies
+                m = models[i - 1]
+                b_true = barrier_from_stops(xs[i - 1].s_m, m.leader_stop(xs[i - 1].s_m, xs[i - 1].v_mps), xs[i].s_m,
+                                            m.follower_stop(xs[i].s_m, xs[i].v_mps, 0.0, xs[i].force_n), L, d_cbf)[0]
+                max_b = max(max_b, b_true)
+        if error:
+            break
+        if spec.kind == "split" and not split_done and xs[0].s_m - L > spec.junction_s_m + 50.0:
+            split_done = True  # the leader has left the trunk: the first follower is no longer behind it
+            break
+        if t >= spec.brake_time_s and not lost:
+            for i in range(1, n):
+                fr = free_runs[i - 1]
+                lost.append(t - float(np.interp(xs[i].s_m, fr.s, fr.t)))
+        if t > spec.brake_time_s and all(x.v_mps < 0.01 for x in xs):
+            rest_since = t if rest_since is None else rest_since
+            if t - rest_since >= 5.0:
+                break
+        else:
+            rest_since = None
+        # messages (every train, stamped now, measured position)
+        braking = t >= spec.brake_time_s
+        for i in range(n):
+            if not channel.due(ids[i], t):
+                continue
+            times = pos = spd = frc = None
+            if i == 0:
+                if not braking:
+                    times, pos, spd, frc = _plan_slice(lead_run, t, 8.0)
+                    pos = pos - pos[0] + meas[0]
+                else:
+                    times, pos, spd, frc = _braking_plan(nom, meas[0], xs[0].v_mps, t, 8.0, dt)
+            msg = Message(ids[i], t, TrainStateMsg(t, meas[i], xs[i].v_mps, xs[i].accel_mps2, xs[i].force_n), L,
+                          plan_times_s=times, plan_positions_m=pos, plan_speeds_mps=spd, plan_forces_n=frc)
+            channel.send(msg, [r for r in ids if r != ids[i]], t)
+        forces = [0.0] * n
+        # leader: tracks its run, then the emergency brake (full brake of its true parameters, held)
+        if braking:
+            forces[0] = -1e12
+        else:
+            v_ref = float(np.interp(t, lead_run.t, lead_run.v))
+            a_ff = float(np.interp(t + dt, lead_run.t, lead_run.v) - v_ref) / dt
+            forces[0] = nom.mass_kg * nom.rotating_mass_factor * (a_ff + 0.5 * (v_ref - xs[0].v_mps)) + _steady_force(nom, xs[0].v_mps, prof, xs[0].s_m)
+        for i in range(1, n):
+            f = followers[i - 1]
+            obs = Observation(
+                time_s=t, step_s=dt, ego_id=ids[i], ego=TrainStateMsg(t, meas[i], xs[i].v_mps, xs[i].accel_mps2, xs[i].force_n), params=nom,
+                profile=prof, received=channel.deliver(ids[i], t), predecessor=ids[i - 1], convoy=convoy,
+                sensed_gap_m=meas[i - 1] - L - meas[i], sensed_speed_mps=xs[i - 1].v_mps,
+            )
+            cmd = stages[i - 1].make_step(obs)
+            if cmd.emergency:
+                em_time += dt
+                if not in_em[i]:
+                    emergencies += 1
+            in_em[i] = cmd.emergency
+            forces[i] = cmd.force_n if math.isfinite(cmd.force_n) else -1e12
+        for i in range(n):
+            plants[i].step(forces[i], dt)
+    if not lost:  # the scenario ended before the brake (a split completed first)
+        lost = [math.nan]
+    supervised = followers[0].supervisor is not None
+    return {
+        "scenario": spec.id, "controller": controller, "supervised": supervised, "line": spec.line, "direction": spec.direction, "kind": spec.kind,
+        "followers": spec.followers, "km_start": round(prof.km_at(spec.leader_start_m)[1], 3), "leader_speed_mps": spec.leader_speed_mps,
+        "brake_time_s": spec.brake_time_s, "delay_s": spec.delay_s, "mean_extra_delay_s": spec.mean_extra_delay_s, "loss_probability": spec.loss_probability,
+        "outage_s": 0.0 if spec.outage is None else spec.outage[1] - spec.outage[0], "position_error_m": spec.position_error_m,
+        "corner_trains": int(sum(spec.corners)), "initial_gap_m": min(gaps0) if gaps0 else math.nan, "safe_gap_m": safe_gap,
+        "min_gap_m": min_gap, "min_gap_margin_m": min_gap - safe_gap, "gap_violations": violations, "collisions": collisions,
+        "emergency_activations": emergencies, "emergency_time_s": em_time, "max_true_barrier_m": max_b if supervised else math.nan,
+        "time_lost_s": float(np.mean(lost)), "simulated_s": t, "wall_time_s": time.perf_counter() - t_wall, "error": "",
+    }
+
+
+def _plan_slice(run: _Run, t: float, horizon_s: float) -> tuple:
+    grid = t + np.arange(0.0, horizon_s + 1e-9, 0.5)
+    v = np.interp(grid, run.t, run.v)
+    return grid, np.interp(grid, run.t, run.s), v, np.zeros_like(v)
+
+
+def _braking_plan(p: TrainParams, s: float, v: float, t: float, horizon_s: float, dt: float) -> tuple:
+    """The braking leader's own plan: its nominal full brake from its state."""
+    a = max(p.service_brake_decel_mps2, 1e-3)
+    tau = np.arange(0.0, horizon_s + 1e-9, 0.5)
+    tau_stop = v / a
+    tt = np.minimum(tau, tau_stop)
+    return t + tau, s + v * tt - 0.5 * a * tt * tt, np.maximum(v - a * tau, 0.0), -float(brake_force_limit(p, max(v, 0.1))) * np.ones_like(tau)
+
+
+# -------------------------------------------------------------------------------------------
+# The campaign
+
+
+def _row_key(cfg_hash: str, scenario: str, controller: str) -> str:
+    return f"{cfg_hash}:{scenario}:{controller}"
+
+
+def scenario_task(args: tuple) -> list[dict]:
+    """Run one scenario for every controller (a worker task); failures become rows with ``error``."""
+    cfg, index, controllers = args
+    rows = []
+    try:
+        spec = draw_scenario(cfg, index)
+    except Exception as exc:  # noqa: BLE001 - reported as the scenario's rows
+        return [{"scenario": f"s{index:05d}", "controller": c, "error": f"{type(exc).__name__}: {exc}"} for c in controllers]
+    for c in controllers:
+        t0 = time.perf_counter()
+        try:
+            row = run_scenario(spec, c, cfg)
+        except VcsumoError as exc:
+            row = {"scenario": spec.id, "controller": c, "error": str(exc)}
+        except Exception as exc:  # noqa: BLE001 - a failing run is a row, never the end of the campaign
+            row = {"scenario": spec.id, "controller": c, "error": f"{type(exc).__name__}: {exc}", "wall_time_s": time.perf_counter() - t0}
+        rows.append(row)
+    return rows
+
+
+def check_campaign(cfg: SafetyCampaign, source: Path | None = None) -> None:
+    """Validate lines and controllers before anything runs (one clear error naming the input)."""
+    from vcsumo.line import load_line
+    from vcsumo.vc import parse_controller
+
+    for ln in cfg.lines:
+        load_line(ln)
+    for c in cfg.controllers:
+        name, spec = parse_controller(c)
+        _param_file(spec, {"cbc": "cbc", "mpc": "mpc", "cruise": "cruise_terlizzi2024"}[name.removeprefix("cbf-")])
+    if cfg.cbf_config:
+        _param_file(cfg.cbf_config, "cbf")
+    if len(set(cfg.controllers)) != len(cfg.controllers):
+        raise InputError(source, "controllers", "a controller is listed twice")
+
+
+def run_safety_campaign(cfg: SafetyCampaign, out: Path, workers: int = 1, progress: Callable[[int, int], None] | None = None) -> pd.DataFrame:
+    """Run (or resume) the campaign into ``out``; returns every row of ``safety.csv``."""
+    from vcsumo.batch import _append, _repair, silence_worker
+
+    check_campaign(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "safety.csv"
+    _repair(csv_path, SAFETY_COLUMNS)
+    done = read_safety(out)
+    h = cfg.scenario_hash()
+    have = set(done["key"]) if len(done) else set()
+    todo = []
+    for k in range(cfg.scenarios):
+        missing = [c for c in cfg.controllers if _row_key(h, f"s{k:05d}", c) not in have]
+        if missing:
+            todo.append((cfg, k, tuple(missing)))
+    total = cfg.scenarios
+    finished = total - len(todo)
+
+    def record(rows: list[dict]) -> None:
+        nonlocal finished
+        for r in rows:
+            r["key"] = _row_key(h, r["scenario"], r["controller"])
+            r.setdefault("error", "")
+        _append(csv_path, rows, SAFETY_COLUMNS)
+        finished += 1
+        if progress:
+            progress(finished, total)
+
+    if progress:
+        progress(finished, total)
+    if workers <= 1 or len(todo) <= 1:
+        for task in todo:
+            record(scenario_task(task))
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=silence_worker, initargs=(str(out / "workers.log"),)) as pool:
+            pending = {pool.submit(scenario_task, task): task for task in todo}
+            while pending:
+                ready, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in ready:
+                    task = pending.pop(fut)
+                    try:
+                        rows = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a dead worker: its scenario's rows carry the error
+                        rows = [{"scenario": f"s{task[1]:05d}", "controller": c, "error": f"worker failed: {type(exc).__name__}: {exc}"} for c in task[2]]
+                    record(rows)
+    df = read_safety(out)
+    keys = {_row_key(h, f"s{k:05d}", c) for k in range(cfg.scenarios) for c in cfg.controllers}
+    return df[df["key"].isin(keys)].reset_index(drop=True)
+
+
+def read_safety(out: Path) -> pd.DataFrame:
+    """``safety.csv`` of a campaign folder (last row per key), empty frame if none."""
+    path = Path(out) / "safety.csv"
+    if not path.is_file():
+        return pd.DataFrame(columns=SAFETY_COLUMNS)
+    df = pd.read_csv(path, dtype={"error": str, "key": str, "controller": str})
+    df["error"] = df["error"].fillna("")
+    return df.drop_duplicates("key", keep="last").reset_index(drop=True)
+
+
+SUMMARY_COLUMNS = [
+    "controller", "supervised", "scenarios", "failed_runs", "scenarios_with_violation", "gap_violations", "violation_rate", "collisions",
+    "min_gap_m", "min_gap_margin_m", "max_true_barrier_m", "emergency_activations_mean", "emergency_time_s_mean",
+    "time_lost_s_mean", "time_lost_s_p95", "wall_time_s_mean",
+]
+
+
+def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
+    """One row per controller: violation counts and rates, collisions, margins, emergencies, time lost."""
+    rows = []
+    for c, g in df.groupby("controller", sort=False):
+        ok = g[g["error"] == ""]
+        rows.append({
+            "controller": c, "supervised": bool(ok["supervised"].astype(bool).any()) if len(ok) else str(c).startswith("cbf-"),
+            "scenarios": len(ok), "failed_runs": int((g["error"] != "").sum()),
+            "scenarios_with_violation": int((ok["gap_violations"] > 0).sum()), "gap_violations": int(ok["gap_violations"].sum()),
+            "violation_rate": float((ok["gap_violations"] > 0).mean()) if len(ok) else math.nan, "collisions": int(ok["collisions"].sum()),
+            "min_gap_m": float(ok["min_gap_m"].min()) if len(ok) else math.nan, "min_gap_margin_m": float(ok["min_gap_margin_m"].min()) if len(ok) else math.nan,
+            "max_true_barrier_m": float(ok["max_true_barrier_m"].max()) if len(ok) else math.nan,
+            "emergency_activations_mean": float(ok["emergency_activations"].mean()) if len(ok) else math.nan,
+            "emergency_time_s_mean": float(ok["emergency_time_s"].mean()) if len(ok) else math.nan,
+            "time_lost_s_mean": float(ok["time_lost_s"].mean()) if len(ok) else math.nan,
+            "time_lost_s_p95": float(ok["time_lost_s"].quantile(0.95)) if len(ok) else math.nan,
+            "wall_time_s_mean": float(ok["wall_time_s"].mean()) if len(ok) else math.nan,
+        })
+    return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+
+
+def bar_met(summary: pd.DataFrame, min_scenarios: int = 1000) -> bool:
+    """Issue 5's bar: every CBF-supervised controller has ≥ ``min_scenarios`` runs, none failed, 0 violations, 0 collisions."""
+    sup = summary[summary["supervised"].astype(bool)]
+    return bool(len(sup)) and bool(((sup["scenarios"] >= min_scenarios) & (sup["failed_runs"] == 0) & (sup["gap_violations"] == 0) & (sup["collisions"] == 0)).all())
+
+
+def write_safety_report(out: Path, cfg: SafetyCampaign, df: pd.DataFrame, summary: pd.DataFrame, wall_time_s: float) -> None:
+    """``report/``: safety_runs.csv (this campaign's rows), safety_summary.csv, safety_gaps.png and meta.json."""
+    from vcsumo.line import load_line
+    from vcsumo.plots_safety import plot_safety
+    from vcsumo.results import ResultsFolder
+
+    inputs = {f"line_{ln}": load_line(ln).path for ln in cfg.lines}
+    params = {**cfg.model_dump(mode="json"), "scenario_hash": cfg.scenario_hash(), "campaign_wall_time_s": round(wall_time_s, 3), "runs": len(df)}
+    with ResultsFolder(Path(out) / "report", inputs=inputs, seed=cfg.seed, params=params, overwrite=True) as rf:
+        df.to_csv(rf.path / "safety_runs.csv", index=False)
+        summary.to_csv(rf.path / "safety_summary.csv", index=False)
+        plot_safety(rf.path / "safety_runs.csv", rf.path / "safety_gaps.png")
