@@ -1,0 +1,120 @@
+"""The Monte Carlo safety campaign (vcsumo study safety): scenarios, runs, resume, failures, CLI."""
+
+import math
+
+import pandas as pd
+import pytest
+
+from vcsumo.cli import main
+from vcsumo.control.base import Command
+from vcsumo.errors import InputError
+from vcsumo.studies.safety import (
+    SAFETY_COLUMNS, SafetyCampaign, SampledController, check_campaign, draw_scenario, line_route, read_safety, run_safety_campaign, run_scenario,
+    scenario_task, summarize_safety,
+)
+
+
+def test_scenarios_are_seeded_and_within_the_configured_ranges():
+    cfg = SafetyCampaign(scenarios=10)
+    a = [draw_scenario(cfg, k) for k in range(40)]
+    b = [draw_scenario(cfg.model_copy(update={"scenarios": 5000, "controllers": ["cbc"]}), k) for k in range(40)]
+    assert a == b  # scenario k does not depend on the campaign size or the controllers
+    assert draw_scenario(cfg.model_copy(update={"seed": 7}), 3) != a[3]
+    for sp in a:
+        assert 0.0 <= sp.loss_probability <= cfg.loss_max
+        assert 0.0 <= sp.delay_s <= cfg.delay_max_s
+        assert 0.0 <= sp.position_error_m <= cfg.position_error_max_m
+        assert 1 <= sp.followers <= cfg.followers_max and len(sp.corners) == sp.followers + 1
+        assert sp.outage is None or 1.0 <= sp.outage[1] - sp.outage[0] <= cfg.outage_max_s
+        route = line_route(sp.line, sp.direction)
+        assert 0.0 < sp.leader_speed_mps <= min(route.stock.params().max_speed_ms, route.profile.max_speed()) + 1e-9
+        if sp.kind in ("merge", "split"):
+            assert route.junctions and any(abs(j.s_m - sp.junction_s_m) < 1e-6 for j in route.junctions)
+    assert {sp.kind for sp in a} == {"cruise", "forming", "merge", "split"}
+    assert all(sp.kind in ("cruise", "forming") for sp in a if sp.line == "hcmc_line1")  # no junction on the metro line
+
+
+class _Counting:
+    def __init__(self):
+        self.calls = 0
+
+    def make_step(self, obs):
+        self.calls += 1
+        return Command(force_n=float(self.calls))
+
+
+def test_sampled_controller_holds_between_periods():
+    from types import SimpleNamespace
+
+    inner = _Counting()
+    ctl = SampledController(inner, 0.4)
+    forces = [ctl.make_step(SimpleNamespace(time_s=k * 0.2)).force_n for k in range(6)]
+    assert inner.calls == 3 and forces == [1.0, 1.0, 2.0, 2.0, 3.0, 3.0]
+
+
+@pytest.fixture(scope="module")
+def cruise_scenario():
+    cfg = SafetyCampaign(lines=["firenze_bologna"], kinds=["cruise"], followers_max=1, outage_probability=0.0)
+    return cfg, draw_scenario(cfg, 0)
+
+
+def test_cbf_supervision_keeps_the_safety_distance_where_consensus_alone_does_not(cruise_scenario):
+    cfg, sp = cruise_scenario
+    sup = run_scenario(sp, "cbf-cbc", cfg)
+    raw = run_scenario(sp, "cbc", cfg)
+    # the leader brakes to a stop at its strongest true brake; the supervised follower keeps d
+    assert sup["safe_gap_m"] == 1000.0
+    assert sup["gap_violations"] == 0 and sup["collisions"] == 0
+    assert sup["min_gap_m"] >= 1000.0 and sup["max_true_barrier_m"] <= 1e-6
+    assert sup["emergency_activations"] >= 1
+    # consensus control at D_safe + h·v (50 m + 1.5 s) cannot stop behind a leader braking as hard as it can
+    assert raw["safe_gap_m"] == 50.0 and raw["gap_violations"] >= 1
+    assert raw["min_gap_m"] < sup["min_gap_m"]
+    assert math.isnan(raw["max_true_barrier_m"])
+
+
+def test_campaign_resumes_and_keeps_finished_rows(tmp_path):
+    cfg = SafetyCampaign(lines=["hcmc_line1"], controllers=["cbc", "cbf-cbc"], scenarios=2, followers_max=1)
+    df1 = run_safety_campaign(cfg, tmp_path / "c", workers=1)
+    assert len(df1) == 4 and (df1["error"] == "").all() and list(pd.read_csv(tmp_path / "c" / "safety.csv").columns) == SAFETY_COLUMNS
+    seen = []
+    df2 = run_safety_campaign(cfg.model_copy(update={"scenarios": 3}), tmp_path / "c", workers=1, progress=lambda d, t: seen.append((d, t)))
+    assert len(df2) == 6 and seen[0] == (2, 3) and seen[-1] == (3, 3)  # only scenario 2 ran
+    kept = df2.set_index("key").loc[df1["key"], "wall_time_s"]
+    assert list(kept) == list(df1["wall_time_s"])
+    # a line cut off by an interruption is dropped and that run is done again
+    path = tmp_path / "c" / "safety.csv"
+    path.write_bytes(path.read_bytes()[:-20])
+    df3 = run_safety_campaign(cfg.model_copy(update={"scenarios": 3}), tmp_path / "c", workers=1)
+    assert len(df3) == 6 and len(read_safety(tmp_path / "c")) == 6
+    s = summarize_safety(df3)
+    assert set(s["controller"]) == {"cbc", "cbf-cbc"} and (s["scenarios"] == 3).all()
+    assert int(s.loc[s["controller"] == "cbf-cbc", "gap_violations"].iloc[0]) == 0
+
+
+def test_failing_scenario_becomes_rows_with_its_error():
+    cfg = SafetyCampaign(lines=["no_such_line"], controllers=["cbc", "mpc"])
+    rows = scenario_task((cfg, 0, ("cbc", "mpc")))
+    assert [r["controller"] for r in rows] == ["cbc", "mpc"] and all("no_such_line" in r["error"] for r in rows)
+
+
+def test_bad_campaign_inputs_are_one_clear_error(tmp_path):
+    with pytest.raises(InputError, match="unknown controller 'pid'"):
+        check_campaign(SafetyCampaign(controllers=["pid"]))
+    with pytest.raises(Exception, match="no_such_line"):
+        check_campaign(SafetyCampaign(lines=["no_such_line"]))
+    assert main(["study", "safety", "--scenarios", "2", "--controllers", "cbc,warp", "--out", str(tmp_path / "x")]) == 2
+    assert main(["study", "safety", "--scenarios", "0", "--out", str(tmp_path / "y")]) == 2
+    assert main(["study", "safety", "--kinds", "teleport", "--out", str(tmp_path / "z")]) == 2
+    assert not any(tmp_path.iterdir())
+
+
+def test_cli_writes_table_report_and_plot(tmp_path, capsys):
+    out = tmp_path / "saf"
+    code = main(["study", "safety", "--scenarios", "2", "--lines", "hcmc_line1", "--controllers", "cbc,cbf-cbc", "--workers", "2", "--out", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "cbf-cbc" in text and "bar met" in text
+    runs = pd.read_csv(out / "report" / "safety_runs.csv")
+    assert len(runs) == 4 and (out / "report" / "safety_gaps.png").stat().st_size > 10_000
+    assert (out / "report" / "meta.json").is_file() and (out / "report" / "safety_summary.csv").is_file()
