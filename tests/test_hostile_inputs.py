@@ -417,6 +417,9 @@ ABSURD = [
     ("study capacity", "train", "maglev", "train", "unknown train 'maglev'"),
     ("study headway", "trains", ["etr1000", "maglev"], "trains[1]", "unknown train 'maglev'"),
     ("study junction", "controllers", ["cbf-warp"], "controllers[0]", "unknown controller 'cbf-warp'"),
+    ("study junction", "controllers", ["cbc\nfake second line"], "controllers[0]", "unknown controller 'cbc\\nfake second line'"),
+    ("study junction", "line", "x" * 5000, "line", "unknown line 'xxx"),
+    ("study junction", "controllers", ["cbc:" + "p" * 5000], "controllers[0]", "controller parameter set 'ppp"),
     ("study batch", "seeds", 10**9, "seeds", "less than or equal to 1000"),
     ("study batch", "delay_config", "nowhere.yaml", "delay_config", "not found"),
     ("delays", "origin.probability", 1.5, "origin.probability", "less than or equal to 1"),
@@ -453,6 +456,9 @@ TT_ABSURD = [
     ("timetable felez_test/convoy", "services[0].id", "../../evil", "services[0].id", "should match pattern"),
     ("timetable felez_test/convoy", "name", "../../evil", "name", "should match pattern"),
     ("timetable felez_test/convoy", "name", "/tmp/evil", "name", "should match pattern"),
+    ("timetable felez_test/convoy", "services[1].origin", "ORIG\nerror: fake", "services[1].origin", "unknown station 'ORIG\\nerror: fake'"),
+    ("timetable felez_test/convoy", "services[1].train", "t" * 5000 + ".yaml", "services[1].train", "train file 'tttt"),
+    ("timetable felez_test/convoy", "services[1].train", "no_such_train.yaml", "services[1].train", "train file 'no_such_train.yaml' not found"),
 ]
 
 

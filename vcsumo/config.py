@@ -54,6 +54,22 @@ def field_path(loc: tuple[Any, ...], keep_last: bool = False) -> str:
     return out
 
 
+def is_file(path: str | Path) -> bool:
+    """``Path.is_file`` that answers False instead of raising for a name the OS rejects (too long, NUL)."""
+    try:
+        return Path(path).is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def is_dir(path: str | Path) -> bool:
+    """``Path.is_dir`` that answers False instead of raising for a name the OS rejects."""
+    try:
+        return Path(path).is_dir()
+    except (OSError, ValueError):
+        return False
+
+
 MAX_FILE_BYTES = 20_000_000
 """Largest input file read, bytes: the biggest shipped file is under 20 kB; a larger one is not an input."""
 MAX_VALUES = 1_000_000

@@ -20,9 +20,10 @@ class InputError(VcsumoError):
     def __init__(self, path: str | Path | None, field: str | None, message: str):
         self.path = None if path is None else str(path)
         self.field = field
-        self.message = message
+        # one line: line breaks echoed from a hostile file (a name written '\n') are shown escaped
+        self.message = message.replace("\r", "\\r").replace("\n", "\\n")
         where = [x for x in (self.path, field) if x]
-        super().__init__(": ".join(where + [message]))
+        super().__init__(": ".join(where + [self.message]).replace("\r", "\\r").replace("\n", "\\n"))
 
 
 class SumoError(VcsumoError):

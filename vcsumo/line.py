@@ -25,7 +25,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from vcsumo.config import StrictModel, load_model
+from vcsumo.config import StrictModel, is_dir, is_file, load_model
 from vcsumo.errors import InputError
 
 TrackLayout = Literal["double", "single"]
@@ -277,14 +277,14 @@ def shipped_lines() -> list[str]:
 def resolve_line_path(spec: str | Path) -> Path:
     """Turn ``--line`` (a shipped line name or a path to a line file) into a file path."""
     path = Path(spec)
-    if path.suffix in (".yaml", ".yml") or path.is_file():
-        if not path.is_file():
+    if path.suffix in (".yaml", ".yml") or is_file(path):
+        if not is_file(path):
             raise InputError(path, None, "line file not found")
         return path.resolve()
-    if path.is_dir() and (path / "line.yaml").is_file():
+    if is_dir(path) and is_file(path / "line.yaml"):
         return (path / "line.yaml").resolve()
     candidate = project_root() / "networks" / str(spec) / "line.yaml"
-    if candidate.is_file():
+    if is_file(candidate):
         return candidate
     raise InputError(None, "--line", f"unknown line '{spec}' (shipped lines: {', '.join(shipped_lines()) or 'none'}; or give a path to a line.yaml)")
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from pydantic import Field, model_validator
 
-from vcsumo.config import FieldProblem, StrictModel, load_model
+from vcsumo.config import FieldProblem, StrictModel, is_file, load_model
 from vcsumo.dynamics import TrainParams
 from vcsumo.errors import InputError
 from vcsumo.line import project_root
@@ -184,8 +184,10 @@ def load_rolling_stock(spec: str | Path) -> RollingStock:
     path = Path(spec)
     if path.suffix not in (".yaml", ".yml"):
         path = rolling_stock_dir() / f"{spec}.yaml"
-        if not path.is_file():
+        if not is_file(path):
             raise InputError(None, "train", f"unknown train '{spec}' (shipped: {', '.join(shipped_rolling_stock())}; or give a path to a .yaml file)")
+    elif not is_file(path):  # the one who named it is to blame (the caller adds its file and field)
+        raise InputError(None, "train", f"train file '{spec}' not found")
     stock = load_model(RollingStock, path)
     if path.parent.resolve() == rolling_stock_dir().resolve() and stock.name != path.stem:
         raise InputError(path, "name", f"name '{stock.name}' must match the file name '{path.stem}'")

@@ -13,7 +13,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import Field, TypeAdapter, ValidationError, field_validator
 
-from vcsumo.config import StrictModel, read_yaml, validation_error
+from vcsumo.config import StrictModel, is_file, read_yaml, validation_error
 from vcsumo.errors import InputError
 
 BlockLength = Annotated[float, Field(ge=100, le=50000, description="Block length, m (100 m–50 km, as in line files)")]
@@ -149,7 +149,7 @@ def check_references(study, path: Path) -> None:
         rewrap(f"controllers[{i}]", _check_controller, c)
     if getattr(study, "delay_config", None):
         spec = _resolve(study.delay_config, base)
-        if not Path(spec).is_file():
+        if not is_file(spec):
             raise InputError(path, "delay_config", f"delay configuration '{study.delay_config}' not found (relative to the study file or the current folder)")
 
 
@@ -168,7 +168,7 @@ def _check_controller(spec: str) -> None:
         raise InputError(None, None, f"unknown controller '{name}' (choose from {', '.join(VC_CONTROLLERS)}; NAME:PARAMS picks a parameter file)")
     if params:
         p = Path(params)
-        found = p.is_file() if p.suffix in (".yaml", ".yml") else (controllers_dir() / f"{params}.yaml").is_file()
+        found = is_file(p) if p.suffix in (".yaml", ".yml") else is_file(controllers_dir() / f"{params}.yaml")
         if not found:
             avail = ", ".join(sorted(x.stem for x in controllers_dir().glob("*.yaml")))
             raise InputError(None, None, f"controller parameter set '{params}' not found (available: {avail}; or a path to a .yaml file)")
@@ -177,7 +177,7 @@ def _check_controller(spec: str) -> None:
 def _resolve(spec: str, base: Path) -> str:
     """A relative path in a study file is relative to the file, unless it names a shipped item."""
     p = Path(spec)
-    if p.suffix in (".yaml", ".yml") and not p.is_absolute() and (base / p).exists():
+    if p.suffix in (".yaml", ".yml") and not p.is_absolute() and is_file(base / p):
         return str((base / p).resolve())
     return spec
 

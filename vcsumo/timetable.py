@@ -17,7 +17,7 @@ from xml.sax.saxutils import quoteattr
 
 from pydantic import Field, field_validator
 
-from vcsumo.config import StrictModel, load_model
+from vcsumo.config import StrictModel, is_file, load_model
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
@@ -147,12 +147,12 @@ class PlannedTrain:
 def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
     p = Path(spec)
     if p.suffix in (".yaml", ".yml"):
-        if not p.is_file():
+        if not is_file(p):
             raise InputError(p, None, "timetable file not found")
         return p.resolve()
     for base in (project_root() / "routes" / line.name, line.path.parent):
         cand = base / f"{spec}.yaml"
-        if cand.is_file():
+        if is_file(cand):
             return cand
     avail = sorted(x.stem for x in (project_root() / "routes" / line.name).glob("*.yaml"))
     raise InputError(None, "--timetable", f"unknown timetable '{spec}' for line '{line.name}' (available: {', '.join(avail) or 'none'}; or give a path)")
