@@ -30,6 +30,10 @@ controller and does not depend on how many scenarios are run):
   0–``mean_extra_max_s``, independent loss 0–``loss_max``, and with probability
   ``outage_probability`` an outage of 1–``outage_max_s`` s (longer outages trip T^max, eq. 18);
 * every train's true parameters (at a box corner with probability ``corner_probability``);
+* the convoy has been communicating before the scenario starts: every follower knows its
+  predecessor's state at t = 0 (so Algorithm 1 starts at once and the T^max rule of eq. 18 runs
+  from the start; a follower that had never heard of its predecessor would drive on its nominal
+  controller alone, as Algorithm 1 of the paper does before the first packet);
 * the position error of every train's odometry, bounded by e_s drawn in 0–``position_error_max_m``
   (Felez eq. 9: a bias and a noise, each within ±e_s/2); the controllers and the supervisor see
   measured positions (their own, in the messages, and the on-board sensed gap), the safety
@@ -290,10 +294,12 @@ def _param_file(spec: str | None, default: str) -> Path:
 
 
 @lru_cache(maxsize=None)
-def _mpc_instance(line: str, direction: str, params_spec: str | None, step_s: float, slot: int):
+def _mpc_instance(line: str, direction: str, params_spec: str | None, step_s: float, period_s: float, slot: int):
     """One follower NMPC per route and process: its DP profile and terminal set (eq. 10, 12m) are
     computed once for the route and reused; :meth:`reset` clears the warm start between scenarios.
-    ``slot`` is the follower's place in the convoy (each follower has its own instance)."""
+    ``slot`` is the follower's place in the convoy (each follower has its own instance).  The NMPC
+    is solved every ``period_s`` (its step) over the horizon it has in the SUMO loop at ``step_s``
+    (N_p·step_s: 8 s with mpc.yaml's N_p = 40 at 0.2 s)."""
     from vcsumo.control.mpc import FollowerMPC, load_mpc_settings
 
     route = line_route(line, direction)
@@ -301,19 +307,21 @@ def _mpc_instance(line: str, direction: str, params_spec: str | None, step_s: fl
     # the follower's braking assumption of 12m cannot exceed what the train nominally has (the metro
     # value of mpc.yaml, 0.75 m/s², is above the ETR1000's 0.65 m/s²)
     a_f = min(settings.a_follower_mps2, route.stock.service_brake_decel_mps2)
-    settings = settings.model_copy(update={"step_s": step_s, "a_follower_mps2": a_f})
+    n_p = max(5, int(round(settings.horizon_steps * step_s / period_s)))
+    settings = settings.model_copy(update={"step_s": period_s, "horizon_steps": n_p, "a_follower_mps2": a_f})
     ctrl = FollowerMPC(route.stock.params(), settings, route_end_m=route.profile.length_m)
     ctrl.route_data(route.profile)
     return ctrl
 
 
 def make_follower(controller: str, route: LineRoute, step_s: float, cbf_config: str | None, predecessor: str = "T0", slot: int = 1,
-                  position_error_m: float = 0.0) -> _Follower:
+                  position_error_m: float = 0.0, control_period_s: float | None = None) -> _Follower:
     """Nominal controller, CBF supervisor (``cbf-`` names), minimum safe gap and coupled spacing."""
     from vcsumo.vc import parse_controller
 
     name, params_spec = parse_controller(controller)
     base = name.removeprefix("cbf-")
+    control_period_s = control_period_s or step_s
     stock = route.stock
     if base == "cbc":
         from vcsumo.control.consensus import ConsensusController, load_cbc_params
@@ -323,7 +331,7 @@ def make_follower(controller: str, route: LineRoute, step_s: float, cbf_config: 
         d_min = prm.gap.d_min_m
         coupled = lambda v: prm.gap.gap_m(v, v)  # noqa: E731 - eq. 3.1 + constant time headway
     elif base == "mpc":
-        ctrl = _mpc_instance(route.line, route.direction, params_spec, step_s, slot)
+        ctrl = _mpc_instance(route.line, route.direction, params_spec, step_s, control_period_s, slot)
         ctrl.reset()
         s = ctrl.settings
         d_min = s.d_min_m
@@ -430,7 +438,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     n = spec.followers + 1
     true_params = [sample_params(stock, rng, corner=c) for c in spec.corners]
     ids = [f"T{k}" for k in range(n)]
-    followers = [make_follower(controller, route, dt, cfg.cbf_config, ids[k - 1], k, cfg.position_error_max_m) for k in range(1, n)]
+    followers = [make_follower(controller, route, dt, cfg.cbf_config, ids[k - 1], k, cfg.position_error_max_m, cfg.control_period_s) for k in range(1, n)]
     safe_gap = followers[0].safe_gap_m
     models = [f.supervisor.model_for(prof) if f.supervisor is not None else None for f in followers]
     d_cbf = followers[0].supervisor.cfg.safety_distance_m if followers[0].supervisor is not None else math.nan
@@ -438,11 +446,11 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     L = stock.length_m
 
     # initial spacing of every follower
-    def spacing(k: int, v: float) -> float:
+    def spacing(k: int, v: float, s_pred: float) -> float:
         f = followers[k - 1]
         g = f.coupled_gap(v)
         if f.supervisor is not None:
-            g = max(g, barrier_gap_m(f.supervisor, prof, spec.leader_start_m, v, L))
+            g = max(g, barrier_gap_m(f.supervisor, prof, s_pred, v, L))
         return max(g, f.safe_gap_m + 1.0)
 
     v_l0 = spec.leader_speed_mps
@@ -458,9 +466,9 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
             g = spec.spacing_factor * (v * v / (2.0 * nom.service_brake_decel_mps2) + followers[0].safe_gap_m + 1.0)
             g = max(g, positions[0] - L - spec.junction_s_m + 1.0)  # the follower is at or before the turnout
         elif spec.kind == "merge":
-            g = spacing(k, v) * 1.05
+            g = spacing(k, v, positions[-1]) * 1.05
         else:
-            g = spec.spacing_factor * spacing(k, max(v, speeds[k - 1])) if (k == 1 or spec.kind != "forming") else spacing(k, v) * 1.05
+            g = spec.spacing_factor * spacing(k, max(v, speeds[k - 1]), positions[-1]) if (k == 1 or spec.kind != "forming") else spacing(k, v, positions[-1]) * 1.05
         gaps0.append(g)
         positions.append(positions[-1] - L - g)
     if positions[-1] < L + 10.0:
@@ -495,10 +503,14 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     t = 0.0
     error = ""
     split_done = False
+    known: dict[int, Message] = {}  # what each follower knew of its predecessor when the scenario starts
     for k in range(steps + 1):
         t = k * dt
         xs = [pl.x for pl in plants]
         meas = [xs[i].s_m + bias[i] + rng.uniform(-0.5 * e_s, 0.5 * e_s) for i in range(n)]
+        if k == 0:
+            known = {i: Message(ids[i - 1], 0.0, TrainStateMsg(0.0, meas[i - 1], xs[i - 1].v_mps, xs[i - 1].accel_mps2, xs[i - 1].force_n), L,
+                                received_time_s=0.0) for i in range(1, n)}
         # safety bookkeeping on the true states
         for i in range(1, n):
             if i == 1 and split_done:
@@ -562,7 +574,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
             f = followers[i - 1]
             obs = Observation(
                 time_s=t, step_s=dt, ego_id=ids[i], ego=TrainStateMsg(t, meas[i], xs[i].v_mps, xs[i].accel_mps2, xs[i].force_n), params=nom,
-                profile=prof, received=channel.deliver(ids[i], t), predecessor=ids[i - 1], convoy=convoy,
+                profile=prof, received={ids[i - 1]: known[i], **channel.deliver(ids[i], t)}, predecessor=ids[i - 1], convoy=convoy,
                 sensed_gap_m=meas[i - 1] - L - meas[i], sensed_speed_mps=xs[i - 1].v_mps,
             )
             cmd = stages[i - 1].make_step(obs)
