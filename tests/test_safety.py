@@ -118,3 +118,17 @@ def test_cli_writes_table_report_and_plot(tmp_path, capsys):
     runs = pd.read_csv(out / "report" / "safety_runs.csv")
     assert len(runs) == 4 and (out / "report" / "safety_gaps.png").stat().st_size > 10_000
     assert (out / "report" / "meta.json").is_file() and (out / "report" / "safety_summary.csv").is_file()
+
+
+def test_study_file_runs_the_campaign_and_is_validated(tmp_path):
+    study = tmp_path / "s.yaml"
+    study.write_text("study: safety\nlines: [hcmc_line1]\ncontrollers: [cbf-cbc]\nscenarios: 1\nfollowers_max: 1\nworkers: 1\n")
+    assert main(["study", "run", str(study), "--out", str(tmp_path / "o")]) == 0
+    meta = (tmp_path / "o" / "report" / "meta.json").read_text()
+    assert "s.yaml" in meta and '"scenarios": 1' in meta and "eclipse-sumo" in meta
+    bad = tmp_path / "b.yaml"
+    bad.write_text("study: safety\nlines: [hcmc_line1]\nscenarois: 10\n")
+    with pytest.raises(InputError, match="scenarois"):
+        from vcsumo.study_files import load_study
+
+        load_study(bad)

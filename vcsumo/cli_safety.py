@@ -37,11 +37,16 @@ def _csv(value: str) -> list[str]:
 @click.option("--mean-extra-max-s", type=float, default=2.0, show_default=True, help="Largest mean exponential extra delay, s")
 @click.option("--outage-max-s", type=float, default=30.0, show_default=True, help="Longest communication outage, s")
 @click.option("--position-error-max-m", type=float, default=1.0, show_default=True, help="Largest odometry error bound e_s (Felez eq. 9), m")
+@click.option("--channel-period-s", type=float, default=0.5, show_default=True, help="Message period of every train, s")
+@click.option("--outage-probability", type=float, default=0.3, show_default=True, help="Probability of one outage in a scenario")
+@click.option("--corner-probability", type=float, default=0.3, show_default=True, help="Probability that a train's true parameters sit at a corner of its uncertainty box")
+@click.option("--max-duration-s", type=float, default=900.0, show_default=True, help="Longest simulated time of a scenario, s")
 @click.option("--cbf", "cbf_config", default=None, help="CBF parameter file (controllers/<name>.yaml or a path; default: cbf)")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (re-running with the same --out resumes)")
 def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers: int | None, step_s: float, control_period_s: float, followers_max: int,
                kinds: str, loss_max: float, delay_max_s: float, mean_extra_max_s: float, outage_max_s: float, position_error_max_m: float,
-               cbf_config: str | None, out: Path | None) -> None:
+               channel_period_s: float, outage_probability: float, corner_probability: float, max_duration_s: float, cbf_config: str | None,
+               out: Path | None) -> None:
     """Monte Carlo safety campaign: leader emergency brakes, lossy delayed channel, outages, uncertain trains, odometry errors."""
     from vcsumo.cli import _print_table, _progress, out_console
     from vcsumo.studies.safety import SafetyCampaign, bar_met, run_safety_campaign, summarize_safety, write_safety_report
@@ -49,7 +54,8 @@ def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers:
     try:
         cfg = SafetyCampaign(scenarios=scenarios, lines=_csv(lines), controllers=_csv(controllers), seed=seed, step_s=step_s, control_period_s=control_period_s,
                              followers_max=followers_max, kinds=_csv(kinds), loss_max=loss_max, delay_max_s=delay_max_s, mean_extra_max_s=mean_extra_max_s,
-                             outage_max_s=outage_max_s, position_error_max_m=position_error_max_m, cbf_config=cbf_config)
+                             outage_max_s=outage_max_s, position_error_max_m=position_error_max_m, cbf_config=cbf_config, channel_period_s=channel_period_s,
+                             outage_probability=outage_probability, corner_probability=corner_probability, max_duration_s=max_duration_s)
     except ValidationError as exc:
         err = exc.errors()[0]
         raise InputError(None, "--" + str(err["loc"][0]).replace("_", "-"), err["msg"]) from None

@@ -1,6 +1,6 @@
 """Study definitions as files: ``studies/*.yaml`` re-run with ``vcsumo study run FILE``.
 
-A study file names its kind (``study: capacity | headway | batch | junction``), the line and the
+A study file names its kind (``study: capacity | headway | batch | junction | safety``), the line and the
 options of the matching command, in the same units.  It is validated strictly (unknown keys are
 errors) before anything runs, then executed through exactly the same code path as the command
 (``vcsumo study capacity ...`` etc.), and the study file is recorded among the results' inputs.
@@ -15,6 +15,7 @@ from pydantic import Field, TypeAdapter, ValidationError, field_validator
 
 from vcsumo.config import StrictModel, is_file, read_yaml, validation_error
 from vcsumo.errors import InputError
+from vcsumo.studies.safety import SafetyCampaign
 
 BlockLength = Annotated[float, Field(ge=100, le=50000, description="Block length, m (100 m–50 km, as in line files)")]
 ConvoySize = Annotated[int, Field(ge=1, le=20, description="Trains in a convoy (1–20: longer convoys are not studied)")]
@@ -22,8 +23,7 @@ Step = Annotated[float, Field(gt=0, le=2, description="Simulation step, s (at mo
 Workers = Annotated[int, Field(ge=1, le=512, description="Parallel processes (1–512)")]
 
 
-class _Common(StrictModel):
-    line: str = Field(description="Shipped line name or path to a line.yaml (relative to the study file)")
+class _Out(StrictModel):
     title: str = ""
     notes: str = ""
     out: str | None = Field(
@@ -41,6 +41,10 @@ class _Common(StrictModel):
         if not v.strip() or p.is_absolute() or ".." in p.parts or v.startswith("~") or "\\" in v or "\x00" in v:
             raise ValueError(f"'{v}' must be a relative folder without '..' (a study file may not write outside the current folder; use --out for that)")
         return v
+
+
+class _Common(_Out):
+    line: str = Field(description="Shipped line name or path to a line.yaml (relative to the study file)")
 
 
 class CapacityStudy(_Common):
@@ -96,13 +100,20 @@ class JunctionStudy(_Common):
     seed: int = Field(default=42, ge=0, description="Random seed (not negative)")
 
 
-StudyFile = Annotated[Union[CapacityStudy, HeadwayStudy, BatchStudy, JunctionStudy], Field(discriminator="study")]
+class SafetyStudy(_Out, SafetyCampaign):
+    """``vcsumo study safety``: the campaign's parameters (:class:`~vcsumo.studies.safety.SafetyCampaign`) and workers."""
+
+    study: Literal["safety"]
+    workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (default: number of CPUs)")
 
 
-_KINDS = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy}
+StudyFile = Annotated[Union[CapacityStudy, HeadwayStudy, BatchStudy, JunctionStudy, SafetyStudy], Field(discriminator="study")]
 
 
-def load_study(path: str | Path) -> CapacityStudy | HeadwayStudy | BatchStudy | JunctionStudy:
+_KINDS = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy, "safety": SafetyStudy}
+
+
+def load_study(path: str | Path) -> CapacityStudy | HeadwayStudy | BatchStudy | JunctionStudy | SafetyStudy:
     """Read and validate a study file; errors name the file and the field.
 
     Besides the fields' own checks, the names a study refers to are resolved before anything runs:
@@ -112,11 +123,11 @@ def load_study(path: str | Path) -> CapacityStudy | HeadwayStudy | BatchStudy | 
     path = Path(path)
     data = read_yaml(path)
     if data is None:
-        raise InputError(path, None, "the file is empty (expected a mapping with study: capacity, headway, batch or junction)")
+        raise InputError(path, None, "the file is empty (expected a mapping with study: capacity, headway, batch, junction or safety)")
     if not isinstance(data, dict):
-        raise InputError(path, None, f"expected a mapping with study: capacity, headway, batch or junction, got a {type(data).__name__}")
+        raise InputError(path, None, f"expected a mapping with study: capacity, headway, batch, junction or safety, got a {type(data).__name__}")
     if "study" not in data:
-        raise InputError(path, "study", "required field is missing (capacity, headway, batch or junction)")
+        raise InputError(path, "study", "required field is missing (capacity, headway, batch, junction or safety)")
     kind = data.get("study")
     try:
         study = TypeAdapter(StudyFile).validate_python(data)
@@ -141,7 +152,13 @@ def check_references(study, path: Path) -> None:
                 raise InputError(path, field, exc.message) from None
             raise
 
-    rewrap("line", resolve_line_path, _resolve(study.line, base))
+    if isinstance(study, SafetyStudy):
+        for i, ln in enumerate(study.lines):
+            rewrap(f"lines[{i}]", resolve_line_path, _resolve(ln, base))
+        if study.cbf_config:
+            rewrap("cbf_config", _check_controller, f"cbf-cbc:{study.cbf_config}")
+    else:
+        rewrap("line", resolve_line_path, _resolve(study.line, base))
     trains = [study.train] if getattr(study, "train", None) else list(getattr(study, "trains", []) or [])
     for i, t in enumerate(trains):
         rewrap("train" if hasattr(study, "train") else f"trains[{i}]", _check_train, t)
@@ -185,8 +202,21 @@ def _resolve(spec: str, base: Path) -> str:
 def study_arguments(study, path: Path, out: Path | None) -> list[str]:
     """The command line equivalent to a study file."""
     base = path.parent
-    args = ["--line", _resolve(study.line, base)]
     dest = out or (Path(study.out) if study.out else None)
+    if isinstance(study, SafetyStudy):
+        args = ["study", "safety", "--scenarios", str(study.scenarios), "--lines", ",".join(_resolve(x, base) for x in study.lines),
+                "--controllers", ",".join(study.controllers), "--seed", str(study.seed), "--step-s", str(study.step_s),
+                "--control-period-s", str(study.control_period_s), "--followers-max", str(study.followers_max), "--kinds", ",".join(study.kinds),
+                "--channel-period-s", str(study.channel_period_s), "--loss-max", str(study.loss_max), "--delay-max-s", str(study.delay_max_s),
+                "--mean-extra-max-s", str(study.mean_extra_max_s), "--outage-probability", str(study.outage_probability),
+                "--outage-max-s", str(study.outage_max_s), "--corner-probability", str(study.corner_probability),
+                "--position-error-max-m", str(study.position_error_max_m), "--max-duration-s", str(study.max_duration_s)]
+        if study.cbf_config:
+            args += ["--cbf", _resolve(study.cbf_config, base)]
+        if study.workers:
+            args += ["--workers", str(study.workers)]
+        return args + (["--out", str(dest)] if dest is not None else [])
+    args = ["--line", _resolve(study.line, base)]
     if isinstance(study, CapacityStudy):
         args = ["study", "capacity"] + args
         if study.train:
