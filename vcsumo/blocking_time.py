@@ -38,6 +38,13 @@ SUMO_MB_SLOW_MARGIN_M = 5.0
 SUMO_MB_MARGIN_SPEED_MPS = 30.0 / 3.6
 
 
+def sumo_mb_margin(speed_mps):
+    """The margin SUMO's moving block keeps behind the train ahead at the follower's speed, m:
+    50 m from 30 km/h, the train's minGap (5 m) below (scalar or array)."""
+    m = np.where(np.asarray(speed_mps) >= SUMO_MB_MARGIN_SPEED_MPS, SUMO_MB_MARGIN_M, SUMO_MB_SLOW_MARGIN_M)
+    return float(m) if m.ndim == 0 else m
+
+
 def sumo_reaction_time(step_s: float) -> float:
     """Equivalent reaction time of SUMO's rail driver, s.
 
@@ -112,7 +119,7 @@ def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m:
     grid = np.arange(float(s[0]), float(s[-1]), step_m)
     vy = np.interp(grid, s, v)
     L = length_m(vy) if callable(length_m) else length_m
-    margin = np.where(vy >= SUMO_MB_MARGIN_SPEED_MPS, margin_m, SUMO_MB_SLOW_MARGIN_M) if margin_m == SUMO_MB_MARGIN_M else margin_m
+    margin = sumo_mb_margin(vy) if margin_m == SUMO_MB_MARGIN_M else margin_m
     ahead = grid + rule.distance(vy) + margin + L
     t_y = time_at(run, grid)
     t_ahead = time_at(run, np.minimum(ahead, s[-1]))

@@ -34,7 +34,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from vcsumo.blocking_time import SUMO_MB_MARGIN_M, SUMO_MB_MARGIN_SPEED_MPS, SUMO_MB_SLOW_MARGIN_M
+from vcsumo.blocking_time import sumo_mb_margin
 
 
 def authority_speed(distance_m: float, decel_mps2: float, reaction_s: float) -> float:
@@ -100,8 +100,7 @@ class DelayedAuthority:
             if i < 0 or sig[i] <= follower_s + 1.0:
                 return math.inf  # no signal between: SUMO let the train into that block already
             return sig[i]
-        margin = SUMO_MB_MARGIN_M if follower_speed_mps >= SUMO_MB_MARGIN_SPEED_MPS else SUMO_MB_SLOW_MARGIN_M
-        return rear_then - margin
+        return rear_then - sumo_mb_margin(follower_speed_mps)
 
     def caps(self, time_s: float, trains: dict, skip: set[str] = frozenset()) -> dict[str, float]:
         """Speed caps (m/s) for this step; ``trains``: id → state with ``s_m``, ``speed_mps``,
