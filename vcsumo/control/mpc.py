@@ -701,6 +701,13 @@ class _MPCBase:
         self._last = None
         self._last_time = None
 
+    def share_route_data(self, other: "_MPCBase") -> None:
+        """Use ``other``'s route cache (look-up, DP profile of eq. 10, terminal set): for controllers
+        of the same train with the same settings and route end, the DP is then computed once."""
+        if other.params != self.params or other.settings != self.settings or other.route_end_m != self.route_end_m:
+            raise ValueError("route data can only be shared between controllers of the same train, settings and route end")
+        self._route = other._route
+
     def route_data(self, profile: RouteProfile) -> tuple[RouteLookup, TerminalSet]:
         """The vectorised route look-up and the terminal set (DP of eq. 10) for ``profile`` (cached)."""
         return self._route.get(profile, self.params, self.settings, self.route_end_m)

@@ -310,6 +310,8 @@ def _mpc_instance(line: str, direction: str, params_spec: str | None, step_s: fl
     n_p = max(5, int(round(settings.horizon_steps * step_s / period_s)))
     settings = settings.model_copy(update={"step_s": period_s, "horizon_steps": n_p, "a_follower_mps2": a_f})
     ctrl = FollowerMPC(route.stock.params(), settings, route_end_m=route.profile.length_m)
+    if slot > 1:
+        ctrl.share_route_data(_mpc_instance(line, direction, params_spec, step_s, period_s, 1))
     ctrl.route_data(route.profile)
     return ctrl
 
