@@ -70,8 +70,13 @@ def _is_casadi(*xs: Any) -> bool:
     return any(type(x).__module__.startswith("casadi") for x in xs)
 
 
+_SCALARS = (float, int)
+
+
 def fmin(a: Any, b: Any) -> Any:
-    """Element-wise minimum for floats, numpy arrays and CasADi expressions."""
+    """Element-wise minimum for floats, numpy arrays and CasADi expressions (NaN propagates)."""
+    if type(a) in _SCALARS and type(b) in _SCALARS:  # fast path of the per-step scalar loops
+        return a if a <= b else (b if a == a else a)
     if _is_casadi(a, b):
         import casadi as ca
 
@@ -80,7 +85,9 @@ def fmin(a: Any, b: Any) -> Any:
 
 
 def fmax(a: Any, b: Any) -> Any:
-    """Element-wise maximum for floats, numpy arrays and CasADi expressions."""
+    """Element-wise maximum for floats, numpy arrays and CasADi expressions (NaN propagates)."""
+    if type(a) in _SCALARS and type(b) in _SCALARS:
+        return a if a >= b else (b if a == a else a)
     if _is_casadi(a, b):
         import casadi as ca
 
