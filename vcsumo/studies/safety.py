@@ -95,7 +95,7 @@ SAFETY_COLUMNS = [
     "key", "scenario", "controller", "supervised", "line", "direction", "kind", "followers", "km_start",
     "leader_speed_mps", "brake_time_s", "delay_s", "mean_extra_delay_s", "loss_probability", "outage_s",
     "position_error_m", "corner_trains", "initial_gap_m", "safe_gap_m", "min_gap_m", "min_gap_margin_m",
-    "gap_violations", "collisions", "emergency_activations", "emergency_time_s", "max_true_barrier_m",
+    "gap_violations", "collisions", "emergency_activations", "emergency_time_s", "initial_true_barrier_m", "max_true_barrier_m",
     "time_lost_s", "simulated_s", "wall_time_s", "error",
 ]
 
@@ -497,7 +497,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     armed = [True] * n
     in_em = [False] * n
     em_time = 0.0
-    max_b = -math.inf
+    max_b = b_init = -math.inf
     lost: list[float] = []
     steps = int(math.ceil(cfg.max_duration_s / dt))
     rest_since = None
@@ -534,6 +534,8 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
                 b_true = barrier_from_stops(xs[i - 1].s_m, m.leader_stop(xs[i - 1].s_m, xs[i - 1].v_mps), xs[i].s_m,
                                             m.follower_stop(xs[i].s_m, xs[i].v_mps, 0.0, xs[i].force_n), L, d_cbf)[0]
                 max_b = max(max_b, b_true)
+                if k == 0:
+                    b_init = max(b_init, b_true)
         if error:
             break
         if spec.kind == "split" and not split_done and xs[0].s_m - L > spec.junction_s_m + 50.0:
@@ -598,7 +600,8 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
         "outage_s": 0.0 if spec.outage is None else spec.outage[1] - spec.outage[0], "position_error_m": spec.position_error_m,
         "corner_trains": int(sum(spec.corners)), "initial_gap_m": min(gaps0) if gaps0 else math.nan, "safe_gap_m": safe_gap,
         "min_gap_m": min_gap, "min_gap_margin_m": min_gap - safe_gap, "gap_violations": violations, "collisions": collisions,
-        "emergency_activations": emergencies, "emergency_time_s": em_time, "max_true_barrier_m": max_b if supervised else math.nan,
+        "emergency_activations": emergencies, "emergency_time_s": em_time, "initial_true_barrier_m": b_init if supervised else math.nan,
+        "max_true_barrier_m": max_b if supervised else math.nan,
         "time_lost_s": float(np.mean(lost)), "simulated_s": t, "wall_time_s": time.perf_counter() - t_wall, "error": "",
     }
 
@@ -726,23 +729,30 @@ def read_safety(out: Path) -> pd.DataFrame:
 
 SUMMARY_COLUMNS = [
     "controller", "supervised", "scenarios", "failed_runs", "scenarios_with_violation", "gap_violations", "violation_rate", "collisions",
-    "min_gap_m", "min_gap_margin_m", "max_true_barrier_m", "emergency_activations_mean", "emergency_time_s_mean",
+    "min_gap_m", "min_gap_margin_m", "max_true_barrier_m", "started_outside_safe_set", "barrier_breaches", "emergency_activations_mean", "emergency_time_s_mean",
     "time_lost_s_mean", "time_lost_s_p95", "wall_time_s_mean",
 ]
 
 
 def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
-    """One row per controller: violation counts and rates, collisions, margins, emergencies, time lost."""
+    """One row per controller: violation counts and rates, collisions, margins, the true barrier
+    (runs that started outside the safe set b ≤ 0 — merges admitted at the interlocking's nominal
+    moving-block distance — and breaches: runs where b rose above max(b(0), 0)), emergencies, time lost."""
     rows = []
     for c, g in df.groupby("controller", sort=False):
         ok = g[g["error"] == ""]
+        b0 = pd.to_numeric(ok.get("initial_true_barrier_m", pd.Series(math.nan, index=ok.index)), errors="coerce")
+        bmax = pd.to_numeric(ok["max_true_barrier_m"], errors="coerce")
         rows.append({
             "controller": c, "supervised": bool(ok["supervised"].astype(bool).any()) if len(ok) else str(c).startswith("cbf-"),
             "scenarios": len(ok), "failed_runs": int((g["error"] != "").sum()),
             "scenarios_with_violation": int((ok["gap_violations"] > 0).sum()), "gap_violations": int(ok["gap_violations"].sum()),
             "violation_rate": float((ok["gap_violations"] > 0).mean()) if len(ok) else math.nan, "collisions": int(ok["collisions"].sum()),
             "min_gap_m": float(ok["min_gap_m"].min()) if len(ok) else math.nan, "min_gap_margin_m": float(ok["min_gap_margin_m"].min()) if len(ok) else math.nan,
-            "max_true_barrier_m": float(ok["max_true_barrier_m"].max()) if len(ok) else math.nan,
+            "max_true_barrier_m": float(bmax.max()) if len(ok) else math.nan,
+            # Theorem VI.1: from b(0) ≤ 0, b stays ≤ 0; a run admitted with b(0) > 0 must not see b rise above b(0)
+            "started_outside_safe_set": int((b0 > 0).sum()),
+            "barrier_breaches": int((bmax > b0.clip(lower=0.0) + 1e-6).sum()),
             "emergency_activations_mean": float(ok["emergency_activations"].mean()) if len(ok) else math.nan,
             "emergency_time_s_mean": float(ok["emergency_time_s"].mean()) if len(ok) else math.nan,
             "time_lost_s_mean": float(ok["time_lost_s"].mean()) if len(ok) else math.nan,
@@ -753,9 +763,11 @@ def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def bar_met(summary: pd.DataFrame, min_scenarios: int = 1000) -> bool:
-    """Issue 5's bar: every CBF-supervised controller has ≥ ``min_scenarios`` runs, none failed, 0 violations, 0 collisions."""
+    """Issue 5's bar: every CBF-supervised controller has ≥ ``min_scenarios`` runs, none failed, 0 violations, 0 collisions
+    (and no barrier breach)."""
     sup = summary[summary["supervised"].astype(bool)]
-    return bool(len(sup)) and bool(((sup["scenarios"] >= min_scenarios) & (sup["failed_runs"] == 0) & (sup["gap_violations"] == 0) & (sup["collisions"] == 0)).all())
+    ok = (sup["scenarios"] >= min_scenarios) & (sup["failed_runs"] == 0) & (sup["gap_violations"] == 0) & (sup["collisions"] == 0) & (sup["barrier_breaches"] == 0)
+    return bool(len(sup)) and bool(ok.all())
 
 
 def write_safety_report(out: Path, cfg: SafetyCampaign, df: pd.DataFrame, summary: pd.DataFrame, wall_time_s: float) -> None:
