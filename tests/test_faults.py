@@ -381,3 +381,38 @@ def test_batch_with_a_killed_worker_keeps_the_other_runs(tmp_path):
     assert not any((out / "runs").glob(f"{victim}*"))
     _no_partials(out)
     assert len(read_batch(out)) == 4
+
+
+ORPHAN_SCRIPT = """
+import multiprocessing, os, sys, time
+from concurrent.futures import ProcessPoolExecutor
+from vcsumo.batch import silence_worker
+def work(x):
+    time.sleep(60)
+    return x
+if __name__ == "__main__":
+    pool = ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"), initializer=silence_worker, initargs=(sys.argv[1],))
+    futures = [pool.submit(work, i) for i in range(4)]
+    time.sleep(4)
+    print(" ".join(str(p) for p in pool._processes), flush=True)
+    os._exit(0)  # the command dies without shutting its pool down (as when it is killed)
+"""
+
+
+def test_workers_end_when_their_command_is_killed(tmp_path):
+    """A killed study or batch leaves no worker processes running on (silence_worker's watchdog)."""
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "orphan.py"
+    script.write_text(ORPHAN_SCRIPT)
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "w.log")], capture_output=True, text=True, timeout=60)
+    pids = [int(x) for x in out.stdout.split()]
+    assert len(pids) == 2
+    deadline = time.time() + 10
+    alive = pids
+    while alive and time.time() < deadline:
+        time.sleep(0.5)
+        alive = [p for p in pids if os.path.exists(f"/proc/{p}") and "Z" not in open(f"/proc/{p}/stat").read().split()[2]]
+    assert not alive, f"orphaned workers still running: {alive}"

@@ -449,11 +449,21 @@ def _capacity(uic: pd.DataFrame, spec: RunSpec, window_s: float) -> tuple[float,
 
 
 def silence_worker(log_path: str) -> None:
-    """Worker initializer: SUMO's console messages go to workers.log, not over the progress bar."""
+    """Worker initializer: SUMO's console messages go to workers.log, not over the progress bar,
+    and the worker ends itself when the command that started it is gone (killed or interrupted),
+    instead of running on as an orphan."""
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
     os.close(fd)
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="vcsumo-parent-watch", daemon=True).start()
 
 
 WORKER_DIED = "the worker process died during the run (killed by a signal, out of memory, or SUMO aborted the process)"
