@@ -85,7 +85,7 @@ def test_shipped_study_files_validate(root):
     for f in files:
         st = load_study(f)
         args = study_arguments(st, f, None)
-        assert "--line" in args
+        assert ("--lines" if st.study == "safety" else "--line") in args
 
 
 def test_fixed_times_lengthen_every_headway_by_their_sum(felez_capacity, tmp_path, line_factory, network_factory):
