@@ -153,6 +153,15 @@ def usable_fallback(cmd: Command) -> bool:
             and _finite_array(cmd.plan_positions_m) and _finite_array(cmd.plan_speeds_mps) and _finite_array(cmd.plan_forces_n))
 
 
+def _unusable_force(owner, cmd: Command) -> str:
+    """Why ``cmd`` (from ``owner``) has no finite force, or "" if it has one."""
+    try:
+        force = float(cmd.force_n)
+    except Exception as exc:  # noqa: BLE001 - any malformed output is a fault
+        return f"{type(owner).__name__} returned no usable force ({type(exc).__name__}: {exc})"
+    return "" if math.isfinite(force) else f"{type(owner).__name__} returned force {force} N"
+
+
 class FaultStage:
     """Controller (+ optional supervisor) with fault handling: ``make_step(obs) -> Command`` (see module doc).
 
@@ -217,12 +226,9 @@ class FaultStage:
             cmd = self.controller.make_step(obs)
         except Exception as exc:  # noqa: BLE001 - any controller failure brakes the train
             return None, CONTROLLER_EXCEPTION, f"{type(self.controller).__name__} raised {type(exc).__name__}: {exc}"
-        try:
-            force = float(cmd.force_n)
-        except Exception as exc:
-            return None, NON_FINITE_COMMAND, f"{type(self.controller).__name__} returned no usable force ({type(exc).__name__}: {exc})"
-        if not math.isfinite(force):
-            return None, NON_FINITE_COMMAND, f"{type(self.controller).__name__} returned force {force} N"
+        bad = _unusable_force(self.controller, cmd)
+        if bad:
+            return None, NON_FINITE_COMMAND, bad
         if cmd.infeasible:
             return cmd, SOLVER_FAILURE, _solver_message(cmd)
         return cmd, None, ""
@@ -232,13 +238,10 @@ class FaultStage:
             out = self.supervisor.filter(obs, cmd)
         except Exception as exc:  # noqa: BLE001
             return None, CONTROLLER_EXCEPTION, f"{type(self.supervisor).__name__} raised {type(exc).__name__}: {exc}"
-        try:
-            force = float(out.force_n)
-        except Exception as exc:
-            return None, NON_FINITE_COMMAND, f"{type(self.supervisor).__name__} returned no usable force ({type(exc).__name__}: {exc})"
-        if not math.isfinite(force):
-            return None, NON_FINITE_COMMAND, f"{type(self.supervisor).__name__} returned force {force} N"
-        if force != cmd.force_n:
+        bad = _unusable_force(self.supervisor, out)
+        if bad:
+            return None, NON_FINITE_COMMAND, bad
+        if float(out.force_n) != cmd.force_n:
             self.supervisor_interventions += 1
         return out, None, ""
 
