@@ -63,10 +63,9 @@ import hashlib
 import json
 import math
 import multiprocessing
-import os
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Callable
@@ -80,7 +79,7 @@ from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.cbf import barrier_from_stops
 from vcsumo.control.channel import Channel, ChannelConfig, Window
 from vcsumo.control.faults import FaultStage
-from vcsumo.control.proxies import BoxBounds, sample_params
+from vcsumo.control.proxies import sample_params
 from vcsumo.dynamics import TrainParams, brake_force_limit, gradient_force, running_resistance
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.plant import PlantState, TrainPlant
@@ -501,7 +500,6 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     lost: list[float] = []
     steps = int(math.ceil(cfg.max_duration_s / dt))
     rest_since = None
-    plan_cache: tuple | None = None
     t = 0.0
     error = ""
     split_done = False
@@ -575,7 +573,6 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
             a_ff = float(np.interp(t + dt, lead_run.t, lead_run.v) - v_ref) / dt
             forces[0] = nom.mass_kg * nom.rotating_mass_factor * (a_ff + 0.5 * (v_ref - xs[0].v_mps)) + _steady_force(nom, xs[0].v_mps, prof, xs[0].s_m)
         for i in range(1, n):
-            f = followers[i - 1]
             obs = Observation(
                 time_s=t, step_s=dt, ego_id=ids[i], ego=TrainStateMsg(t, meas[i], xs[i].v_mps, xs[i].accel_mps2, xs[i].force_n), params=nom,
                 profile=prof, received={ids[i - 1]: known[i], **channel.deliver(ids[i], t)}, predecessor=ids[i - 1], convoy=convoy,
