@@ -8,7 +8,7 @@ import pytest
 
 from vcsumo.cli import main
 from vcsumo.rolling_stock import load_rolling_stock
-from vcsumo.studies.capacity import CAPACITY_COLUMNS, run_capacity_study
+from vcsumo.studies.capacity import CAPACITY_COLUMNS, SEARCH_BRACKET, SEARCH_CENTRE, run_capacity_study
 
 from .conftest import write
 
@@ -126,3 +126,31 @@ def test_a_failing_case_becomes_a_row_and_the_study_goes_on(tmp_path, line_facto
     assert "no sustainable headway" in failed.error and pd.isna(failed.capacity_trains_per_h)
     # a convoy of one is moving block: it still has MB's result
     assert df[(df.regime == "vc") & (df.convoy_size == 1)].capacity_trains_per_h.iloc[0] == ok[ok.regime == "mb"].capacity_trains_per_h.iloc[0]
+
+
+@pytest.mark.parametrize("threshold", [97.3, 99.0, 100.6, 91.2, 108.9])
+@pytest.mark.parametrize("centre, bracket", [(1.0, 0.03), (SEARCH_CENTRE, SEARCH_BRACKET)])
+def test_bisection_finds_the_threshold_from_any_bracket(threshold, centre, bracket):
+    """The first bracket only saves simulations: with the capacity study's centre and width or the
+    old ±3 % around the guess, the answer is the first unhindered interval within the resolution,
+    and a guess 1 % above the answer costs at most 4 probes with the narrow bracket."""
+    from vcsumo.studies.min_headway import search_min_headway
+
+    class FakeProbe:
+        def __init__(self, h):
+            self.h = h
+
+        def ok(self, label, tolerance_s):
+            return self.h >= threshold
+
+    runs = []
+
+    def run_at(h):
+        runs.append(h)
+        return FakeProbe(h)
+
+    h, pr = search_min_headway(run_at, ["end"], {"end": 100.0}, resolution_s=0.5, bracket=bracket, centre=centre)["end"]
+    assert pr.ok("end", 2.0) and threshold <= h <= threshold + 0.5
+    assert len(runs) == len(set(runs))  # each interval simulated once
+    if centre == SEARCH_CENTRE and threshold == 99.0:
+        assert len(runs) <= 4

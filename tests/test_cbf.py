@@ -346,3 +346,64 @@ def test_supervisor_safe_with_force_lag_or_jerk_limit(profile, seed, lag, jerk):
     )
     assert sup.stats.max_true_barrier_m <= 0.0
     assert sup.stats.interventions > 0
+
+
+@pytest.mark.parametrize("lag, jerk", [(0.0, math.inf), (0.5, 0.7), (0.0, 0.7), (0.5, math.inf)])
+def test_fast_paths_compute_the_documented_formulas_exactly(profile, lag, jerk):
+    """The supervisor's per-step shortcuts (constants evaluated once, S^F computed once per state, S^L
+    remembered between steps) give bit-for-bit the values of the plain formulas."""
+    from dataclasses import replace as dc_replace
+
+    from vcsumo.control.cbf import sampled_stop_margin_m
+    from vcsumo.units import G
+
+    stock = load_rolling_stock("etr1000")
+    fb = dc_replace(BoxBounds.from_stock(stock), traction_lag_s=lag, max_jerk_mps3=jerk)
+    lb = BoxBounds.from_stock(stock)
+    cfg = CBFConfig()
+    m = BarrierModel(lb, fb, cfg, profile)
+    rng = np.random.default_rng(3)
+    for _ in range(400):
+        s = float(rng.uniform(-300.0, profile.length_m + 300.0))
+        v = float(rng.choice([0.0, 0.05, rng.uniform(0.0, 95.0)]))
+        force = [None, float(rng.uniform(-fb.strongest_brake_n(v) * 1.2, fb.mass_high_kg * fb.accel_high_mps2))][int(rng.integers(2))]
+        dt = float(rng.choice([0.0, 0.2, 0.5]))
+        # S^F: the formula of follower_stop (BoxBounds.actuation_delay_s, brake_decel_low)
+        t_act = fb.actuation_delay_s(force)
+        s1, v1 = s, v
+        if t_act > 0.0:
+            f_up = fb.mass_high_kg * fb.accel_high_mps2 if force is None else max(force, 0.0)
+            a_up = f_up / (fb.rotating_mass_factor * fb.mass_low_kg) + G * max(0.0, -m.follower.route.global_bounds.grade_min)
+            s1, v1 = s + v * t_act + 0.5 * a_up * t_act * t_act, v + a_up * t_act
+        if v1 <= 0.0:
+            want = s1
+        else:
+            a = cfg.epsilon * fb.brake_decel_low(v1) + fb.davis_a_low_n / (fb.rotating_mass_factor * fb.mass_high_kg)
+            want = m.stops_follower.stop_point(s1, v1, a) + (sampled_stop_margin_m(v1, max(a, 0.0), dt) if dt > 0 else 0.0)
+        assert m.follower_stop(s, v, dt, force) == want
+        # S^L: cached or not, the stopping point at the leader's brake-plus-resistance deceleration
+        want_l = s if v <= 0 else m.stops_leader.stop_point(s, v, m.leader_brake_decel(v))
+        assert m.leader_stop(s, v) == want_l and m.leader_stop(s, v) == want_l
+        m.new_step()
+        assert m.leader_stop(s, v) == want_l
+        # the RUP's first step over its window
+        u = float(rng.uniform(-3e5, 3e5))
+        step = float(rng.choice([0.2, 0.5]))
+        assert m.follower.rup_step_accel(s, v, u, step) == m.follower.rup_accel(v, u, m.follower.window(s, v, step))
+
+
+def test_supervisor_bounds_equal_the_rlp_branches(stocks, profile):
+    """LeaderRLPPredictor.bounds (states and S^L written out) equals its definition on the branches."""
+    lead, fol = stocks
+    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), CBFConfig(), profile)
+    pred = LeaderRLPPredictor(model, keep=2)
+    for k, (s0, v0) in enumerate([(20000.0, 80.0), (20041.0, 79.5), (20080.0, 79.0)]):
+        pred.update(Message(sender=LEADER, sent_time_s=0.5 * k, state=TrainStateMsg(0.5 * k, s0, v0, 0.0, 0.0), length_m=lead.length_m))
+        for t in (0.5 * k, 0.5 * k + 0.2, 0.5 * k + 37.3, 0.5 * k + 400.0):
+            pos, stop, v_out = -math.inf, -math.inf, 0.0
+            for br in pred.branches:
+                s, v = br.state(t)
+                if s > pos:
+                    pos, v_out = s, v
+                stop = max(stop, s if v <= 0 else model.stops_leader.stop_point(s, v, model.leader_brake_decel(v)))
+            assert pred.bounds(t) == (pos, stop, v_out)

@@ -192,3 +192,25 @@ def test_robust_plan_is_the_rlp_of_the_planned_forces(profile):
     assert t[0] == 100.0 and t[-1] == pytest.approx(112.0)
     assert s[-1] == s_full[-1] and v[-1] == v_full[-1]
     assert math.isclose(s[1], s_full[5])
+
+
+def test_route_profile_lookups_do_not_depend_on_the_order_of_queries(profile):
+    """RouteProfile remembers the last edge found and the last train-length look-ups (per-step
+    speed-ups): any sequence of queries gives what a fresh profile answers to each one alone."""
+    from bisect import bisect_right
+
+    rng = np.random.default_rng(7)
+    walk = profile
+    s = 0.0
+    for _ in range(3000):
+        r = rng.random()
+        s = s + rng.uniform(-5.0, 90.0) if r < 0.6 else (float(rng.uniform(-1000.0, profile.length_m + 1000.0)) if r < 0.9 else float(profile.starts_m[rng.integers(len(profile.starts_m))]))
+        L = float(rng.choice([0.0, 202.0, 404.0]))
+        fresh = RouteProfile(**{f: getattr(profile, f) for f in ("edges", "starts_m", "lengths_m", "speeds_ms", "gradients", "tunnel_factors", "sections", "km_from", "km_to", "point_limits")})
+        i = min(max(bisect_right(list(profile.starts_m), s) - 1, 0), len(profile.edges) - 1)
+        assert walk.index_at(s) == fresh.index_at(s) == i
+        for name, args in (("mean_gradient", (s, L)), ("speed_limit_train", (s, L)), ("tunnel_factor_at", (s,)), ("km_at", (s,)), ("gradient_range", (s, s + L))):
+            assert getattr(walk, name)(*args) == getattr(fresh, name)(*args), (name, args)
+        sec, km = walk.km_at(s)
+        sign = 1.0 if profile.km_to[i] >= profile.km_from[i] else -1.0
+        assert (sec, km) == (profile.sections[i], float(profile.km_from[i] + sign * (s - profile.starts_m[i]) / 1000.0))

@@ -36,6 +36,13 @@ class RouteProfile:
     _grads: list[float] = field(default_factory=list, repr=False, compare=False)
     _tfs: list[float] = field(default_factory=list, repr=False, compare=False)
     _ends: list[float] = field(default_factory=list, repr=False, compare=False)
+    _km_from: list[float] = field(default_factory=list, repr=False, compare=False)
+    _km_sign: list[float] = field(default_factory=list, repr=False, compare=False)
+    _last_i: int = field(default=0, repr=False, compare=False)
+    _mg_key: tuple = field(default=(), repr=False, compare=False)
+    _mg_val: float = field(default=0.0, repr=False, compare=False)
+    _slt_key: tuple = field(default=(), repr=False, compare=False)
+    _slt_val: float = field(default=0.0, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # plain lists for fast scalar look-ups (bisect) in the per-step loops
@@ -44,6 +51,14 @@ class RouteProfile:
         self._grads = [float(x) for x in self.gradients]
         self._tfs = [float(x) for x in self.tunnel_factors]
         self._ends = [float(a + b) for a, b in zip(self.starts_m, self.lengths_m)]
+        self._km_from = [float(x) for x in self.km_from]
+        self._km_sign = [1.0 if b >= a else -1.0 for a, b in zip(self.km_from, self.km_to)]
+        # the edge found last (a train's look-ups walk along the route) and the last values of the
+        # train-length look-ups: the loop, the controller and the guard ask for the same position
+        # several times per step
+        self._last_i = 0
+        self._mg_key = ()
+        self._slt_key = ()
 
     @property
     def length_m(self) -> float:
@@ -76,15 +91,22 @@ class RouteProfile:
     # ---------------------------------------------------------------------------------------
     def index_at(self, s: float) -> int:
         """Index of the edge containing position s (the later edge at a boundary)."""
-        i = bisect_right(self._starts, s) - 1
-        return min(max(i, 0), len(self._starts) - 1)
+        starts = self._starts
+        i = self._last_i
+        # fast path: still on the edge found last (same answer as the bisection)
+        if starts[i] <= s and (i + 1 == len(starts) or s < starts[i + 1]):
+            return i
+        i = bisect_right(starts, s) - 1
+        i = min(max(i, 0), len(starts) - 1)
+        self._last_i = i
+        return i
 
     def km_at(self, s: float) -> tuple[str, float]:
         """(section, chainage km) of route position s."""
         i = self.index_at(s)
-        pos = s - self.starts_m[i]
-        sign = 1.0 if self.km_to[i] >= self.km_from[i] else -1.0
-        return self.sections[i], float(self.km_from[i] + sign * pos / 1000.0)
+        pos = s - self._starts[i]
+        km0 = self._km_from[i]
+        return self.sections[i], float(km0 + self._km_sign[i] * pos / 1000.0)
 
     def s_of(self, section: str, km: float) -> float:
         """Route position of a section chainage (first pass), m; raises KeyError if not on the route."""
@@ -107,16 +129,28 @@ class RouteProfile:
 
     def speed_limit_train(self, s: float, length_m: float) -> float:
         """Lowest limit over the whole train [s − L, s] including turnouts (SUMO's rule), m/s."""
+        key = (s, length_m)
+        if key == self._slt_key:
+            return self._slt_val
         i0 = self.index_at(max(s - length_m, 0.0))
         i1 = self.index_at(s)
         v = min(self._speeds[i0 : i1 + 1])
         for ps, pv in self.point_limits:
             if s - length_m - 1e-9 <= ps <= s + 1e-9 and pv < v:
                 v = pv
+        self._slt_key, self._slt_val = key, v
         return v
 
     def mean_gradient(self, s: float, length_m: float) -> float:
         """Equivalent gradient averaged over the train [s − L, s] (SUMO's getSlope)."""
+        key = (s, length_m)
+        if key == self._mg_key:
+            return self._mg_val
+        val = self._mean_gradient(s, length_m)
+        self._mg_key, self._mg_val = key, val
+        return val
+
+    def _mean_gradient(self, s: float, length_m: float) -> float:
         lo = s - length_m
         g = self._grads
         if length_m <= 0:

@@ -54,7 +54,7 @@ from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Message, Observation
-from vcsumo.control.proxies import BoxBounds, RobustProxies, RouteBounds, StopIntegral
+from vcsumo.control.proxies import _V_EPS, BoxBounds, RobustProxies, RouteBounds, StopIntegral
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.units import G
@@ -142,6 +142,25 @@ class BarrierModel:
         v = leader.max_speed_ms
         res = leader.davis_a_high_n + leader.davis_b_high_n_per_mps * v + leader.davis_c_high_n_per_mps2 * tf * v * v
         self._leader_brake_mps2 = (leader.brake_decel_high_mps2 + res / leader.mass_low_kg) / leader.rotating_mass_factor
+        # per-step constants of the follower (same arithmetic as BoxBounds.actuation_delay_s,
+        # brake_decel_low and follower_stop, evaluated once)
+        fb = follower
+        self._f_actuated = fb.traction_lag_s > 0 or math.isfinite(fb.max_jerk_mps3)
+        self._f_brake_full_n = fb.strongest_brake_n(0.0)
+        self._f_traction_full_n = fb.mass_high_kg * fb.accel_high_mps2
+        self._f_jerk_n_per_s = fb.mass_low_kg * fb.max_jerk_mps3 if math.isfinite(fb.max_jerk_mps3) and fb.max_jerk_mps3 > 0 else 0.0
+        self._f_delay_full_s = fb.actuation_delay_s()
+        self._f_lag_s = fb.traction_lag_s
+        self._f_grade_up = G * max(0.0, -self.follower.route.global_bounds.grade_min)
+        self._f_accel_den = fb.rotating_mass_factor * fb.mass_low_kg
+        self._f_resist_mps2 = fb.davis_a_low_n / (fb.rotating_mass_factor * fb.mass_high_kg)
+        self._f_brake_low = (fb.brake_decel_low_mps2, fb.brake_power_low_w, fb.mass_high_kg, fb.rotating_mass_factor)
+        self._f_epsilon = config.epsilon
+        # S^L of recent leader states (profile mode: a function of (s, v) only): the supervisor asks
+        # for the same RLP states at t + Δt and again at the next step's t.  Two generations, this
+        # step's and the last one's (new_step), bounded in size for callers that never call it
+        self._leader_stops: dict[tuple[float, float], float] = {}
+        self._leader_stops_prev: dict[tuple[float, float], float] = {}
 
     # ---- decelerations without the grade -------------------------------------------------
     def leader_brake_decel(self, v: float) -> float:
@@ -155,8 +174,11 @@ class BarrierModel:
 
     def follower_brake_decel(self, v: float) -> float:
         """Lower bound ε·α̲(x2) + A̲/M̄ of the follower's deceleration under K_E^F, without the grade, m/s²."""
-        b = self.follower.b
-        return self.cfg.epsilon * b.brake_decel_low(v) + b.davis_a_low_n / (b.rotating_mass_factor * b.mass_high_kg)
+        # ε·brake_decel_low(v) + A̲/M̄ with the box constants looked up once (same arithmetic)
+        lo, p_lo, m_hi, rho = self._f_brake_low
+        vv = _V_EPS if _V_EPS > v else v  # max(v, V_EPS)
+        x = p_lo / (m_hi * vv)
+        return self._f_epsilon * ((x if x < lo else lo) / rho) + self._f_resist_mps2
 
     # ---- windowed decelerations of §V (paper-literal; also used by the RLP and the references)
     def leader_bounds(self, s: float, v: float) -> RouteBounds:
@@ -177,8 +199,22 @@ class BarrierModel:
         if v <= 0.0:
             return s
         if self.profile_mode:
-            return self.stops_leader.stop_point(s, v, self.leader_brake_decel(v))
+            key = (s, v)
+            stop = self._leader_stops.get(key)
+            if stop is None:
+                stop = self._leader_stops_prev.get(key)
+                if stop is None:
+                    stop = self.stops_leader.stop_point(s, v, self.leader_brake_decel(v))
+                if len(self._leader_stops) >= 256:
+                    self.new_step()
+                self._leader_stops[key] = stop
+            return stop
         return s + v * v / (2.0 * self.leader_decel(s, v, rb))
+
+    def new_step(self) -> None:
+        """Start a new control step: S^L remembered from the last step only (a cache, no state)."""
+        self._leader_stops_prev = self._leader_stops
+        self._leader_stops = {}
 
     def follower_stop(self, s: float, v: float, dt_s: float = 0.0, force_n: float | None = None) -> float:
         """S^F: upper bound of where the follower stops under K_E^F from (s, v), m.
@@ -189,27 +225,46 @@ class BarrierModel:
         :meth:`~vcsumo.control.proxies.BoxBounds.actuation_delay_s` (or ``actuation_delay_s`` of
         the configuration, at full traction).
         """
-        fb = self.follower.b
+        stop, v, a = self._follower_stop_parts(s, v, force_n)
+        if dt_s > 0 and v > 0.0:
+            stop += sampled_stop_margin_m(v, max(a, 0.0), dt_s)
+        return stop
+
+    def _follower_stop_parts(self, s: float, v: float, force_n: float | None) -> tuple[float, float, float]:
+        """(S^F without the sampled-data margin, speed when the full brake acts, ē^F used).
+
+        The speed is ≤ 0 when the follower stops before braking (then S^F is its position and no
+        margin applies); :meth:`follower_stop` adds the margin.
+        """
         if self.cfg.actuation_delay_s is not None:
             t_act, force_n = self.cfg.actuation_delay_s, None
-        else:
-            t_act = fb.actuation_delay_s(force_n)
+        elif not self._f_actuated:
+            t_act = 0.0
+        elif force_n is None:
+            t_act = self._f_delay_full_s
+        else:  # the follower's BoxBounds.actuation_delay_s(force_n) with its constants precomputed
+            swing = force_n + self._f_brake_full_n
+            if swing > 0.0:
+                t_act = self._f_lag_s + (swing / self._f_jerk_n_per_s if self._f_jerk_n_per_s > 0 else 0.0)
+            else:
+                t_act = 0.0
         if t_act > 0.0:
-            f_up = fb.mass_high_kg * fb.accel_high_mps2 if force_n is None else max(force_n, 0.0)
-            a_up = f_up / (fb.rotating_mass_factor * fb.mass_low_kg) + G * max(0.0, -self.follower.route.global_bounds.grade_min)
+            f_up = self._f_traction_full_n if force_n is None else max(force_n, 0.0)
+            a_up = f_up / self._f_accel_den + self._f_grade_up
             s = s + v * t_act + 0.5 * a_up * t_act * t_act
             v = v + a_up * t_act
         if v <= 0.0:
-            return s
+            return s, v, 0.0
         if self.profile_mode:
-            a = self.follower_brake_decel(v)
+            # follower_brake_decel(v) written out (the hot path of the supervisor)
+            lo, p_lo, m_hi, rho = self._f_brake_low
+            x = p_lo / (m_hi * (_V_EPS if _V_EPS > v else v))
+            a = self._f_epsilon * ((x if x < lo else lo) / rho) + self._f_resist_mps2
             stop = self.stops_follower.stop_point(s, v, a)
         else:
             a = self.follower_decel(s, v)
             stop = s + v * v / (2.0 * a) if a > 0 else math.inf
-        if dt_s > 0:
-            stop += sampled_stop_margin_m(v, max(a, 0.0), dt_s)
-        return stop
+        return stop, v, a
 
     def value(self, s_l: float, v_l: float, s_f: float, v_f: float, dt_s: float = 0.0) -> tuple[float, float, float]:
         """b(x) = (b, b', b'') for the given states (eq. 15); ``dt_s > 0`` adds the sampled-data margins."""
@@ -323,12 +378,34 @@ class LeaderRLPPredictor:
         """
         pos = stop = -math.inf
         v_out = 0.0
+        model = self.model
+        cache = model._leader_stops if model.profile_mode and len(model._leader_stops) < 256 else None
         for br in self.branches:
-            s, v = br.state(t_s)
-            st = self.model.leader_stop(s, v, br.rb)
+            # br.state(t_s) written out (the hot loop of the supervisor)
+            tau = t_s - br.t0_s
+            if not tau > 0.0:
+                tau = 0.0
+            v0, e = br.v0_mps, br.e0_mps2
+            if tau * e >= v0:
+                s, v = br.s0_m + v0 * v0 / (2.0 * e), 0.0
+            else:
+                s, v = br.s0_m + v0 * tau - 0.5 * e * tau * tau, v0 - e * tau
+            if v <= 0.0:
+                st = s
+            elif cache is not None:  # model.leader_stop(s, v) with its cache written out
+                key = (s, v)
+                st = cache.get(key)
+                if st is None:
+                    st = model._leader_stops_prev.get(key)
+                    if st is None:
+                        st = model.stops_leader.stop_point(s, v, model.leader_brake_decel(v))
+                    cache[key] = st
+            else:
+                st = model.leader_stop(s, v, br.rb)
             if s > pos:
                 pos, v_out = s, v
-            stop = max(stop, st)
+            if st > stop:  # max(stop, st)
+                stop = st
         return pos, stop, v_out
 
     def stop_of(self, s_m: float, v_mps: float) -> float:
@@ -439,10 +516,13 @@ class CBFSupervisor:
         self._models: dict[int, BarrierModel] = {}
         self._predictor: LeaderRLPPredictor | None = None
         self._profile_key: int | None = None
+        self._model: BarrierModel | None = None
         self.stats = SupervisorStats()
         self.history = _History()
         self._in_emergency = False
         self._commands: deque[tuple[float, float]] = deque()
+        fb = self.follower_bounds
+        self._command_horizon_s = 5.0 * fb.traction_lag_s + fb.actuation_delay_s() + 1.0
 
     @classmethod
     def from_files(cls, leader: str | Path, follower: str | Path, config: str | Path | None = None, leader_id: str | None = None) -> "CBFSupervisor":
@@ -475,76 +555,93 @@ class CBFSupervisor:
         return obs.received.get(lid)
 
     def filter(self, obs: Observation, nominal: Command) -> Command:
-        model = self.model_for(obs.profile)
-        if self._predictor is None or self._profile_key != id(obs.profile):
+        prof_key = id(obs.profile)
+        if self._predictor is None or self._profile_key != prof_key:
             # a new route frame: positions of older packets are not comparable, start Algorithm 1 again
-            self._predictor = LeaderRLPPredictor(model, self.keep_resets)
-            self._profile_key = id(obs.profile)
+            self._model = self.model_for(obs.profile)
+            self._predictor = LeaderRLPPredictor(self._model, self.keep_resets)
+            self._profile_key = prof_key
+        model = self._model
         pred = self._predictor
+        model.new_step()
         t, dt = obs.time_s, obs.step_s
         msg = self._leader_message(obs)
         pred.update(msg)
         s_f, v_f = obs.ego.position_m, max(0.0, obs.ego.speed_mps)
-        self.stats.steps += 1
+        stats = self.stats
+        stats.steps += 1
+        cfg = self.cfg
 
         b_true = math.nan
         sensed = obs.sensed_gap_m is not None and obs.sensed_speed_mps is not None
-        if sensed and not pred.has_data:
-            s_l_true = s_f + obs.sensed_gap_m + self.leader_bounds.length_m
-            b_true = model.value(s_l_true, max(0.0, obs.sensed_speed_mps), s_f, v_f)[0]
-            self.stats.max_true_barrier_m = max(self.stats.max_true_barrier_m, b_true)
-
-        if not pred.has_data:
-            if self.cfg.brake_without_leader_data and obs.predecessor is not None:
+        if not pred.branches:
+            if sensed:
+                s_l_true = s_f + obs.sensed_gap_m + self.leader_bounds.length_m
+                b_true = model.value(s_l_true, max(0.0, obs.sensed_speed_mps), s_f, v_f)[0]
+                stats.max_true_barrier_m = max(stats.max_true_barrier_m, b_true)
+            if cfg.brake_without_leader_data and obs.predecessor is not None:
                 return self._emergency(obs, nominal, math.nan, b_true, "no-data", math.nan)
             self._log(t, math.nan, b_true, False, "no-data", math.nan)
             self._in_emergency = False
             self._remember(t, nominal.force_n)
             return nominal
 
-        dt_m = dt if self.cfg.sampled_data_margin else 0.0
-        L, d = model.leader_length_m, model.d_m
-        fol = model.follower
+        dt_m = dt if cfg.sampled_data_margin else 0.0
+        Ld = model.leader_length_m + model.d_m  # L^L + d of eq. 15
         # follower RUP (eq. 13) after one step of the nominal command (with a force lag or jerk limit
         # the applied force lies between the present one and the command)
-        actuated = fol.b.actuation_delay_s() > 0 or self.cfg.actuation_delay_s is not None
+        actuated = model._f_delay_full_s > 0 or cfg.actuation_delay_s is not None
         f_now = self._applied_force_bound(t, obs.ego.force_n) if actuated else None
         u_pred = nominal.force_n if not actuated else max(nominal.force_n, f_now)
         f_next = None if not actuated else u_pred
-        v_f1 = max(0.0, v_f + fol.rup_accel(v_f, u_pred, fol.window(s_f, v_f, dt)) * dt)
+        v_f1 = max(0.0, v_f + model.follower.rup_step_accel(s_f, v_f, u_pred, dt) * dt)
         s_f1 = s_f + max(v_f, v_f1) * dt
-        stop_f0 = model.follower_stop(s_f, v_f, dt_m, f_now)
-        # robust barrier b(x̲^L(t), x^F(t)) (Algorithm 2, line 2) and one step ahead
+        # S^F at the present state once: with the sampled-data margin for the robust barrier, without
+        # it for the true one (follower_stop(s_f, v_f, dt_m, f_now) and follower_stop(s_f, v_f, 0, f_now))
+        stop_f_cont, v_brake, e_f = model._follower_stop_parts(s_f, v_f, f_now)
+        stop_f0 = stop_f_cont
+        if dt_m > 0 and v_brake > 0.0:
+            stop_f0 += sampled_stop_margin_m(v_brake, max(e_f, 0.0), dt_m)
+        # robust barrier b(x̲^L(t), x^F(t)) (Algorithm 2, line 2) and one step ahead; eq. 15 with stop
+        # points as barrier_from_stops: b = max(b', b''), b' = L + d − (S^L − S^F), b'' = L + d − (x^L − x^F)
         pos_l, stop_l, v_l = pred.bounds(t)
-        b_now = barrier_from_stops(pos_l - v_l * dt_m, stop_l - v_l * dt_m, s_f, stop_f0, L, d)[0]
+        shift = v_l * dt_m
+        b_now = max(Ld - ((stop_l - shift) - stop_f0), Ld - ((pos_l - shift) - s_f))
         b_chk = b_now
-        if self.cfg.lookahead:
+        if cfg.lookahead:
             pos_l1, stop_l1, v_l1 = pred.bounds(t + dt)
-            b_next = barrier_from_stops(pos_l1 - v_l1 * dt_m, stop_l1 - v_l1 * dt_m, s_f1, model.follower_stop(s_f1, v_f1, dt_m, f_next), L, d)[0]
+            shift = v_l1 * dt_m
+            stop_f1, v_brake, e_f = model._follower_stop_parts(s_f1, v_f1, f_next)
+            if dt_m > 0 and v_brake > 0.0:
+                stop_f1 += sampled_stop_margin_m(v_brake, max(e_f, 0.0), dt_m)
+            b_next = max(Ld - ((stop_l1 - shift) - stop_f1), Ld - ((pos_l1 - shift) - s_f1))
             b_chk = max(b_now, b_next)
-        self.stats.max_robust_barrier_m = max(self.stats.max_robust_barrier_m, b_now)
+        stats.max_robust_barrier_m = max(stats.max_robust_barrier_m, b_now)
         if sensed:
             # eq. 15 on the true states (Theorem VI.1), continuous-time form
             s_l_true = s_f + obs.sensed_gap_m + self.leader_bounds.length_m
             v_l_true = max(0.0, obs.sensed_speed_mps)
-            b_true = barrier_from_stops(s_l_true, pred.stop_of(s_l_true, v_l_true), s_f, model.follower_stop(s_f, v_f, 0.0, f_now), L, d)[0]
-            self.stats.max_true_barrier_m = max(self.stats.max_true_barrier_m, b_true)
-        age = t - pred.t_last
-        c = age - self.cfg.t_max_s  # eq. 18
-        if b_chk >= -self.cfg.trigger_margin_m:
+            b_true = max(Ld - (pred.stop_of(s_l_true, v_l_true) - stop_f_cont), Ld - (s_l_true - s_f))
+            stats.max_true_barrier_m = max(stats.max_true_barrier_m, b_true)
+        age = t - pred.branches[-1].t0_s
+        c = age - cfg.t_max_s  # eq. 18
+        if b_chk >= -cfg.trigger_margin_m:
             return self._emergency(obs, nominal, b_now, b_true, "barrier", age)
         if c >= 0.0:
             return self._emergency(obs, nominal, b_now, b_true, "t-max", age)
         self._in_emergency = False
         self._remember(t, nominal.force_n)
         self._log(t, b_now, b_true, False, "", age)
-        return replace(nominal, info={**nominal.info, "cbf_barrier_m": b_now, "cbf_true_barrier_m": b_true, "cbf_info_age_s": age})
+        info = {**nominal.info, "cbf_barrier_m": b_now, "cbf_true_barrier_m": b_true, "cbf_info_age_s": age}
+        if type(nominal) is Command:  # dataclasses.replace without its per-call field introspection
+            return Command(nominal.force_n, nominal.mode, nominal.emergency, nominal.infeasible, nominal.plan_times_s, nominal.plan_positions_m,
+                           nominal.plan_speeds_mps, nominal.plan_forces_n, info)
+        return replace(nominal, info=info)
 
     def _remember(self, t: float, force_n: float) -> None:
         """Keep the commands of the last 5 lag time constants plus a full jerk ramp."""
         self._commands.append((t, force_n))
-        b = self.follower_bounds
-        horizon = 5.0 * b.traction_lag_s + b.actuation_delay_s() + 1.0
+        horizon = self._command_horizon_s
         while self._commands and self._commands[0][0] < t - horizon:
             self._commands.popleft()
 

@@ -50,8 +50,9 @@ from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Message, Observation
 from vcsumo.control.gap_reference import GapReference, GapSample, SteadyGap
 from vcsumo.control.topology_graph import ConvoyGraph, TopologyName, convoy_graph
-from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance, traction_limit
+from vcsumo.dynamics import _V_EPS, TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance, traction_limit
 from vcsumo.errors import InputError
+from vcsumo.units import G
 
 # ---------------------------------------------------------------------------------------------
 # Parameters
@@ -141,6 +142,30 @@ def acceleration_envelope(p: TrainParams, speed_mps: float, gradient: float = 0.
     return lo, hi
 
 
+def _envelope(p: TrainParams, v: float, tf: float, grad: float) -> tuple[float, float, float]:
+    """(traction limit, −brake limit, resistance + gradient force) at speed v, N.
+
+    ``traction_limit``, ``brake_force_limit``, ``running_resistance`` and ``gradient_force`` of
+    :mod:`vcsumo.dynamics` written out for Python floats (the same operations in the same order,
+    without numpy's per-call overhead on scalars); anything else (NaN, numpy, CasADi) goes through
+    those functions.
+    """
+    if type(v) is not float or type(tf) is not float or type(grad) is not float or v != v:
+        return (float(traction_limit(p, v)), -float(brake_force_limit(p, v)),
+                float(running_resistance(p, v, tf)) + float(gradient_force(p, grad)))
+    v_pos = v if v > _V_EPS else _V_EPS  # max(v, V_EPS) for a number
+    f_tr = p.max_power_w / v_pos
+    f_max = p.max_traction_n if p.max_traction_n <= f_tr else f_tr
+    f_br = p.mass_kg * p.service_brake_decel_mps2
+    if math.isinf(p.max_brake_power_w):
+        f_br = f_br + 0.0 * v
+    else:
+        pb = p.max_brake_power_w / v_pos
+        f_br = f_br if f_br <= pb else pb
+    f_res = (p.davis_a_n + p.davis_b_n_per_mps * v + tf * p.davis_c_n_per_mps2 * v * v) + p.mass_kg * G * grad
+    return float(f_max), -float(f_br), float(f_res)
+
+
 def sat(x: float, bound: float) -> float:
     """sat_Δ(x) = sgn(x)·Δ for |x| > Δ, x otherwise (eq. 4.4)."""
     return max(-bound, min(bound, x))
@@ -194,9 +219,9 @@ class ConsensusController:
         tf = obs.profile.tunnel_factor_at(ego.position_m)
         self._remember(obs)
         convoy = tuple(obs.convoy)
-        if obs.ego_id not in convoy or convoy.index(obs.ego_id) == 0:
+        i = convoy.index(obs.ego_id) if obs.ego_id in convoy else 0
+        if i == 0:
             return self._leader_step(obs, grad, tf)
-        i = convoy.index(obs.ego_id)
         if prm.law == "consensus":
             u, info = self._consensus(obs, convoy, i)
         else:
@@ -266,10 +291,13 @@ class ConsensusController:
         if nbrs is None:
             nbrs = self._neighbours[key] = convoy_graph(prm.topology, len(convoy)).neighbours(i)
         links: list[_Link] = []
+        received, max_age_s = obs.received, prm.max_message_age_s
         for j, a_ij in nbrs.items():
-            m = self._fresh(obs, convoy[j])
+            m = received.get(convoy[j])  # as _fresh, with the age computed once
             if m is not None:
-                links.append(_Link(m, j, a_ij, _age_s(obs, m)))
+                age = _age_s(obs, m)
+                if not age > max_age_s:
+                    links.append(_Link(m, j, a_ij, age))
         gaps: dict[int, GapSample] = {i: self._gap_sample(obs, convoy, i, i)}
         info: dict[str, Any] = {"gap_ref_m": gaps[i].gap_m, "links": len(links)}
         if not links:
@@ -374,9 +402,7 @@ class ConsensusController:
             u = min(u, prm.speed_limit_gain_per_s * (v_lim - v))
         # eq. 4.4 input bound: the speed-dependent envelope −min(M a_br, P_br/v) ≤ F ≤ min(M a_dr, P_dr/v),
         # mapped to accelerations through eq. 1b (same arithmetic as dynamics.acceleration, computed once)
-        f_max = float(traction_limit(p, v))
-        f_min = -float(brake_force_limit(p, v))
-        f_res = float(running_resistance(p, v, tf)) + float(gradient_force(p, grad))
+        f_max, f_min, f_res = _envelope(p, v, tf, grad)
         m_eff = p.mass_kg * p.rotating_mass_factor
         u_sat = min(max(u, (f_min - f_res) / m_eff), (f_max - f_res) / m_eff)
         force = min(max(m_eff * u_sat + f_res, f_min), f_max)

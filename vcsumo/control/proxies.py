@@ -276,6 +276,18 @@ class GradeWindow:
         t = self._tunnels_l[i0 : i1 + 1]
         return RouteBounds(min(g), max(g), min(t), max(t))
 
+    def lower_bounds(self, s_from: float, s_to: float) -> tuple[float, float]:
+        """(grade_min, tunnel_min) of :meth:`bounds` without building a :class:`RouteBounds`."""
+        if self.profile is None:
+            return _LEVEL.grade_min, _LEVEL.tunnel_min
+        starts = self._starts_l
+        n = len(starts)
+        i0 = min(max(bisect_right(starts, s_from) - 1, 0), n - 1)
+        i1 = min(max(bisect_right(starts, s_to) - 1, 0), n - 1)
+        if i1 < i0:
+            i0, i1 = i1, i0
+        return min(self._grades_l[i0 : i1 + 1]), min(self._tunnels_l[i0 : i1 + 1])
+
     def grades_at(self, s: np.ndarray) -> np.ndarray:
         """Point equivalent gradient at each position (vectorised; for prediction models)."""
         if self.profile is None:
@@ -318,6 +330,8 @@ class StopIntegral:
             self.I = np.array([0.0])
             self._x_list = [0.0]
             self._G_list = [0.0]
+            self._I_list = [0.0]
+            self._n = 1
             return
         starts = np.asarray(profile.starts_m, dtype=float)
         sig = np.asarray(profile.gradients, dtype=float)
@@ -339,34 +353,37 @@ class StopIntegral:
         G = (P(bps) - P(bps - L)) / L
         I = np.concatenate(([0.0], np.cumsum(0.5 * (G[1:] + G[:-1]) * np.diff(bps))))
         self.x, self.G, self.I = bps, G, I
+        # plain lists: the per-step look-ups are scalar (bisect and float arithmetic)
         self._x_list = bps.tolist()
         self._G_list = G.tolist()
+        self._I_list = I.tolist()
+        self._n = len(self._x_list)
 
     def _seg(self, x: float) -> int:
-        return min(max(bisect_right(self._x_list, x) - 1, 0), len(self._x_list) - 1)
+        return min(max(bisect_right(self._x_list, x) - 1, 0), self._n - 1)
 
     def grade_at(self, x: float) -> float:
         """G(x), the train-averaged equivalent gradient at front position x."""
         xs, Gs = self._x_list, self._G_list
-        if len(xs) == 1 or x <= xs[0]:
+        n = self._n
+        if n == 1 or x <= xs[0]:
             return Gs[0]
-        k = self._seg(x)
-        if k >= len(xs) - 1:
+        k = bisect_right(xs, x) - 1  # ≥ 0 since x > xs[0]
+        if k >= n - 1:
             return Gs[-1]
         return Gs[k] + (x - xs[k]) / (xs[k + 1] - xs[k]) * (Gs[k + 1] - Gs[k])
 
     def integral_at(self, x: float) -> float:
         """I(x) = ∫_{x_0}^{x} G (exact: G is linear between breakpoints)."""
-        if len(self.x) == 1:
-            return float(self.G[0] * (x - self.x[0]))
-        if x <= self.x[0]:
-            return float(self.G[0] * (x - self.x[0]))
-        k = self._seg(x)
-        h = x - self.x[k]
-        if k >= len(self.x) - 1:
-            return float(self.I[-1] + self.G[-1] * h)
-        slope = (self.G[k + 1] - self.G[k]) / (self.x[k + 1] - self.x[k])
-        return float(self.I[k] + self.G[k] * h + 0.5 * slope * h * h)
+        xs, Gs, Is = self._x_list, self._G_list, self._I_list
+        if self._n == 1 or x <= xs[0]:
+            return Gs[0] * (x - xs[0])
+        k = bisect_right(xs, x) - 1
+        h = x - xs[k]
+        if k >= self._n - 1:
+            return Is[-1] + Gs[-1] * h
+        slope = (Gs[k + 1] - Gs[k]) / (xs[k + 1] - xs[k])
+        return Is[k] + Gs[k] * h + 0.5 * slope * h * h
 
     def stop_point(self, x: float, v: float, a: float) -> float:
         """First S ≥ x with a·(S − x) + g·(I(S) − I(x)) ≥ v²/2; +inf if never reached."""
@@ -374,25 +391,34 @@ class StopIntegral:
             return x
         target = 0.5 * v * v
         xs, Gs = self._x_list, self._G_list
-        n = len(xs)
+        n = self._n
+        # G(x) (as grade_at) and the first breakpoint after x, with one bisection
+        if x <= xs[0]:
+            Ga = Gs[0]
+            j = 0
+        else:
+            k = bisect_right(xs, x) - 1
+            if k >= n - 1:
+                k = n - 1
+                Ga = Gs[-1]
+            else:
+                Ga = Gs[k] + (x - xs[k]) / (xs[k + 1] - xs[k]) * (Gs[k + 1] - Gs[k])
+            j = k + 1
         # walk the linear pieces of G from x: on [xa, xb], a + g·G is linear, F is quadratic
+        # (the decelerations a + g·G at the breakpoints are computed once and carried along)
         xa = x
-        Ga = self.grade_at(x)
         Fa = 0.0
-        k = self._seg(x) if x > xs[0] else -1
-        j = k + 1
+        ra = a + G * Ga
         while True:
-            if j < n:
-                xb, Gb = xs[j], Gs[j]
-            else:  # beyond the last breakpoint: constant grade
-                r = a + G * Ga
-                if r <= 0:
+            if j >= n:  # beyond the last breakpoint: constant grade
+                if ra <= 0:
                     return math.inf
-                return xa + (target - Fa) / r
-            h_seg = xb - xa
-            ra, rb_ = a + G * Ga, a + G * Gb
+                return xa + (target - Fa) / ra
+            xb = xs[j]
+            rb_ = a + G * Gs[j]
             if ra <= 0 or rb_ <= 0:  # energy balance not monotone here: careful scan
                 return self._first_crossing(x, a, target, self.integral_at(x))
+            h_seg = xb - xa
             Fb = Fa + 0.5 * (ra + rb_) * h_seg
             if Fb >= target:
                 c2 = 0.5 * (rb_ - ra) / h_seg if h_seg > 0 else 0.0
@@ -402,7 +428,7 @@ class StopIntegral:
                 else:
                     h = (2.0 * rhs) / (ra + math.sqrt(max(ra * ra + 4.0 * c2 * rhs, 0.0)))
                 return xa + min(max(h, 0.0), h_seg)
-            xa, Ga, Fa = xb, Gb, Fb
+            xa, ra, Fa = xb, rb_, Fb
             j += 1
 
     def _first_crossing(self, x: float, a: float, target: float, Ix: float) -> float:
@@ -437,6 +463,8 @@ class RobustProxies:
     def __init__(self, bounds: BoxBounds, profile: RouteProfile | None = None):
         self.b = bounds
         self.route = GradeWindow(profile)
+        # the largest acceleration of :meth:`window` (constant)
+        self._a_max_window = bounds.accel_high_mps2 / bounds.rotating_mass_factor + G * max(0.0, -self.route.global_bounds.grade_min)
 
     @classmethod
     def from_stock(cls, stock: RollingStock, profile: RouteProfile | None = None) -> "RobustProxies":
@@ -480,9 +508,22 @@ class RobustProxies:
         it holds even for a train that exceeds V_max.
         """
         b = self.b
-        a_max = b.accel_high_mps2 / b.rotating_mass_factor + G * max(0.0, -self.route.global_bounds.grade_min)
+        a_max = self._a_max_window
         reach = max(b.max_speed_ms, v0) * horizon_s + 0.5 * a_max * horizon_s * horizon_s
         return self.route.bounds(s0 - b.length_m, s0 + reach)
+
+    def rup_step_accel(self, s0: float, v0: float, u_n: float, dt: float) -> float:
+        """:meth:`rup_accel` at (s0, v0) under u over :meth:`window` (s0, v0, dt): the RUP's first
+        step, with the window's two lower bounds only (same arithmetic)."""
+        b = self.b
+        a_max = self._a_max_window
+        reach = max(b.max_speed_ms, v0) * dt + 0.5 * a_max * dt * dt
+        grade_min, tunnel_min = self.route.lower_bounds(s0 - b.length_m, s0 + reach)
+        rho = b.rotating_mass_factor
+        if u_n < 0:
+            return (-b.davis_a_low_n + max(u_n, -b.robust_brake_max_n(v0))) / (rho * b.mass_high_kg) - G * grade_min
+        res = b.davis_a_low_n + b.davis_b_low_n_per_mps * v0 + b.davis_c_low_n_per_mps2 * tunnel_min * v0 * v0
+        return -res / (rho * b.mass_high_kg) - G * grade_min + u_n / (rho * b.mass_low_kg)
 
     def rollout(self, kind: str, s0: float, v0: float, forces_n: np.ndarray, dt: float, rb: RouteBounds | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Integrate the RLP (``kind="lower"``) or RUP (``"upper"``) under a force sequence.

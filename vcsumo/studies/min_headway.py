@@ -96,13 +96,15 @@ class Probe:
 
 def search_min_headway(
     run_at: Callable[[float], Probe], labels: list[str], guess_s: dict[str, float], tolerance_s: float = 2.0,
-    resolution_s: float = 0.25, max_expand: int = 6, bracket: float = 0.15,
+    resolution_s: float = 0.25, max_expand: int = 6, bracket: float = 0.15, centre: float = 1.0,
 ) -> dict[str, tuple[float, Probe]]:
     """Bisection on the release interval for every measuring point.
 
-    ``guess_s`` brackets the search (e.g. the analytic headway): [g·(1 − bracket), g·(1 + bracket)];
-    the bracket is widened (doubling steps) until its lower end is hindered and its upper end is
-    not, so the guess never decides the answer — a good guess only saves simulations.
+    ``guess_s`` brackets the search (e.g. the analytic headway): c·g ± max(bracket·c·g, resolution/2)
+    with c = ``centre`` (where the answer is expected relative to the guess), so a bracket that
+    holds the answer is decided by its two ends; the bracket is widened (doubling steps) until its
+    lower end is hindered and its upper end is not, so the guess never decides the answer — a good
+    guess only saves simulations.
     """
     cache: dict[float, Probe] = {}
 
@@ -114,8 +116,8 @@ def search_min_headway(
 
     out: dict[str, tuple[float, Probe]] = {}
     for lab in labels:
-        g = max(guess_s.get(lab, 60.0), 1.0)
-        step = max(bracket * g, resolution_s)
+        g = max(guess_s.get(lab, 60.0) * centre, 1.0)
+        step = max(bracket * g, 0.5 * resolution_s)
         lo, hi = max(g - step, 0.1), g + step
         for _ in range(max_expand):
             if not probe(lo).ok(lab, tolerance_s):
