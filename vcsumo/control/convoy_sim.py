@@ -86,7 +86,8 @@ def flat_profile(length_m: float, speed_limit_mps: float = 100.0, gradient: floa
     )
 
 
-def _steady_force(p: TrainParams, v: float, profile: RouteProfile, s: float) -> float:
+def steady_force(p: TrainParams, v: float, profile: RouteProfile, s: float) -> float:
+    """Force that holds speed v at position s: running resistance + gradient over the train (eq. 1b with a = 0), N."""
     return float(running_resistance(p, v, profile.tunnel_factor_at(s)) + gradient_force(p, profile.mean_gradient(s, p.length_m)))
 
 
@@ -159,7 +160,7 @@ def simulate_convoy(
     for k in range(1, n):
         positions.append(positions[-1] - params[k - 1].length_m - gaps[k - 1])
     plants = [
-        TrainPlant(p, PlantState(s, v, _steady_force(p, v, profile, s), 0.0), profile, apply_lag=apply_lag, apply_jerk=apply_jerk)
+        TrainPlant(p, PlantState(s, v, steady_force(p, v, profile, s), 0.0), profile, apply_lag=apply_lag, apply_jerk=apply_jerk)
         for p, s, v in zip(params, positions, v_init)
     ]
     controllers: dict[str, Controller] = {ids[k]: controller_factory(ids[k]) for k in range(1, n)}
@@ -228,7 +229,7 @@ def _leader_force(lp: LeaderProfile, p: TrainParams, x: PlantState, profile: Rou
     else:
         v_ref, a_ff, gain = float(lp(t)), 0.0, 0.5
     a = a_ff + gain * (v_ref - x.v_mps)
-    return p.mass_kg * p.rotating_mass_factor * a + _steady_force(p, x.v_mps, profile, x.s_m)
+    return p.mass_kg * p.rotating_mass_factor * a + steady_force(p, x.v_mps, profile, x.s_m)
 
 
 def gap_errors(df: pd.DataFrame) -> pd.DataFrame:

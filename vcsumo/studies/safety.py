@@ -78,9 +78,10 @@ from vcsumo.config import StrictModel
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.cbf import barrier_from_stops
 from vcsumo.control.channel import Channel, ChannelConfig, Window
+from vcsumo.control.convoy_sim import steady_force
 from vcsumo.control.faults import FaultStage
 from vcsumo.control.proxies import sample_params
-from vcsumo.dynamics import TrainParams, brake_force_limit, gradient_force, running_resistance
+from vcsumo.dynamics import TrainParams, brake_force_limit
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.plant import PlantState, TrainPlant
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
@@ -412,10 +413,6 @@ class SampledController:
 # One run
 
 
-def _steady_force(p: TrainParams, v: float, profile: RouteProfile, s: float) -> float:
-    return float(running_resistance(p, v, profile.tunnel_factor_at(s)) + gradient_force(p, profile.mean_gradient(s, p.length_m)))
-
-
 @dataclass
 class _Run:
     t: np.ndarray
@@ -484,7 +481,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     cap_f = capped_profile(prof, max(max(speeds), 1.0))
     free_runs = [_unhindered(nom, cap_f, positions[k], speeds[k], horizon) for k in range(1, n)]
 
-    plants = [TrainPlant(true_params[k], PlantState(positions[k], speeds[k], _steady_force(true_params[k], speeds[k], prof, positions[k]), 0.0), prof) for k in range(n)]
+    plants = [TrainPlant(true_params[k], PlantState(positions[k], speeds[k], steady_force(true_params[k], speeds[k], prof, positions[k]), 0.0), prof) for k in range(n)]
     outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
     channel = Channel(ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
                                     loss_probability=spec.loss_probability, outages=outages, seed=spec.seed))
@@ -571,7 +568,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
         else:
             v_ref = float(np.interp(t, lead_run.t, lead_run.v))
             a_ff = float(np.interp(t + dt, lead_run.t, lead_run.v) - v_ref) / dt
-            forces[0] = nom.mass_kg * nom.rotating_mass_factor * (a_ff + 0.5 * (v_ref - xs[0].v_mps)) + _steady_force(nom, xs[0].v_mps, prof, xs[0].s_m)
+            forces[0] = nom.mass_kg * nom.rotating_mass_factor * (a_ff + 0.5 * (v_ref - xs[0].v_mps)) + steady_force(nom, xs[0].v_mps, prof, xs[0].s_m)
         for i in range(1, n):
             obs = Observation(
                 time_s=t, step_s=dt, ego_id=ids[i], ego=TrainStateMsg(t, meas[i], xs[i].v_mps, xs[i].accel_mps2, xs[i].force_n), params=nom,
