@@ -19,7 +19,7 @@ from pathlib import Path
 
 
 def main() -> None:
-    from vcsumo.batch import run_batch
+    from vcsumo.studies.batch import run_batch
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--line", default="firenze_bologna")

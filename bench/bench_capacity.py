@@ -64,7 +64,7 @@ def main() -> None:
     if args.from_dir is not None:
         report(pd.read_csv(args.from_dir / "capacity.csv"), None)
         return
-    from vcsumo.cli import main as cli
+    from vcsumo.cli.main import main as cli
 
     with tempfile.TemporaryDirectory(prefix="vcsumo-bench-") as tmp:
         out = args.out if args.out is not None else Path(tmp) / "cap"

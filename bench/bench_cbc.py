@@ -18,7 +18,7 @@ import numpy as np
 from vcsumo.control.base import Command, Observation
 from vcsumo.control.channel import ChannelConfig
 from vcsumo.control.consensus import ConsensusController, cbc_params_for, delay_margin_s, load_cbc_params
-from vcsumo.control.convoy_sim import SpeedProfile, simulate_convoy
+from vcsumo.sim.offline import SpeedProfile, simulate_convoy
 
 
 class Timed:

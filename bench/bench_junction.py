@@ -37,10 +37,10 @@ def _red_stop_decels(folder: Path) -> list[float]:
 def mode26_red(tmp: Path) -> dict:
     """A commanded train (speed mode 26) meets a red block signal."""
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.route_profile import RouteProfile
-    from vcsumo.simulation import Scenario, simulate
+    from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import PlannedTrain
 
     @dataclass
@@ -76,7 +76,7 @@ def mode26_red(tmp: Path) -> dict:
 
 def study_case(tmp: Path, line_name: str, junction: str, direction: str, first: str, offset: float, label: str, **flags) -> list[dict]:
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies import junction as J
 

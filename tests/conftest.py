@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "vcsumo" / "data"
 
 
 @pytest.fixture(scope="session")
@@ -31,7 +32,7 @@ def line_factory():
 
 @pytest.fixture(scope="session")
 def network_factory(line_factory):
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
 
     cache = {}
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from vcsumo.batch import BATCH_COLUMNS, TRAIN_COLUMNS, read_batch, run_batch
+from vcsumo.studies.batch import BATCH_COLUMNS, TRAIN_COLUMNS, read_batch, run_batch
 from vcsumo.delays import NO_DELAYS, DelayConfig, DelaySpec
 from vcsumo.errors import InputError, VcsumoError
 
@@ -22,7 +22,8 @@ from .conftest import write
 pytestmark = pytest.mark.sumo
 
 ROOT = Path(__file__).resolve().parent.parent
-FELEZ = ROOT / "routes" / "felez_test"
+DATA = ROOT / "vcsumo" / "data"
+FELEZ = DATA / "routes" / "felez_test"
 INFEASIBLE = """name: too_fast
 line: felez_test
 services:
@@ -120,7 +121,7 @@ def test_every_results_folder_records_inputs_versions_seed_and_wall_time(batch):
 def test_the_same_command_again_runs_nothing(batch, monkeypatch):
     from click.testing import CliRunner
 
-    from vcsumo.cli_batch import batch_cmd
+    from vcsumo.cli.batch import batch_cmd
 
     out, df, specs = batch
     before = (out / "batch.csv").read_text()
@@ -181,7 +182,7 @@ def test_more_primary_delay_means_lower_punctuality(tmp_path):
 
 
 def test_bad_input_is_one_clear_error(tmp_path):
-    from vcsumo.cli_batch import batch_cmd
+    from vcsumo.cli.batch import batch_cmd
 
     def run(*args):
         batch_cmd.main(["--line", "felez_test", "--out", str(tmp_path / "x"), *args], standalone_mode=False)
@@ -193,7 +194,7 @@ def test_bad_input_is_one_clear_error(tmp_path):
     with pytest.raises(InputError, match="--timetables: unknown timetable 'nope'"):
         run("--regimes", "fbs", "--timetables", "nope")
     with pytest.raises(InputError, match="no timetable file matches"):
-        run("--regimes", "fbs", "--timetables", "routes/felez_test/*.yml")
+        run("--regimes", "fbs", "--timetables", "vcsumo/data/routes/felez_test/*.yml")
     bad = write(tmp_path / "d.yaml", "origin: {probability: 0.3, mean: 60}\n")
     with pytest.raises(InputError, match=r"d.yaml: origin.mean: unknown key"):
         run("--regimes", "fbs", "--timetables", "test", "--delay-config", str(bad))
@@ -250,7 +251,7 @@ def test_dask_cluster_gives_the_same_rows_as_local_processes(batch, tmp_path):
 def test_default_folder_is_the_same_for_the_same_command(in_tmp):
     from click.testing import CliRunner
 
-    from vcsumo.cli_batch import batch_cmd
+    from vcsumo.cli.batch import batch_cmd
 
     args = ["--line", "felez_test", "--timetables", "test", "--regimes", "mb", "--seeds", "1", "--workers", "0"]
     first = CliRunner().invoke(batch_cmd, args, catch_exceptions=False)

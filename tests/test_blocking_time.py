@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vcsumo.blocking_time import (
+from vcsumo.signalling.blocking_time import (
     BrakingRule,
     fbs_blocking_times,
     fbs_headway_at,

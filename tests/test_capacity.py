@@ -6,7 +6,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from vcsumo.cli import main
+from vcsumo.cli.main import main
 from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.studies.capacity import CAPACITY_COLUMNS, SEARCH_BRACKET, SEARCH_CENTRE, run_capacity_study
 
@@ -78,9 +78,9 @@ def test_bad_study_file(in_tmp, capsys, text, words):
 
 
 def test_shipped_study_files_validate(root):
-    from vcsumo.study_files import load_study, study_arguments
+    from vcsumo.cli.study_files import load_study, study_arguments
 
-    files = sorted((root / "studies").glob("*.yaml"))
+    files = sorted((root / "vcsumo" / "data" / "studies").glob("*.yaml"))
     assert any(f.name == "capacity_firenze_bologna.yaml" for f in files)
     for f in files:
         st = load_study(f)
@@ -91,7 +91,7 @@ def test_shipped_study_files_validate(root):
 def test_fixed_times_lengthen_every_headway_by_their_sum(felez_capacity, tmp_path, line_factory, network_factory):
     """ETCS fixed times (route setting + MA transmission + reaction) delay every release of track to
     the follower: blocking-time theory adds them once; the simulated SUMO trains, which see an
-    authority that old (vcsumo.fixed_times), lose the same time.  Runs in two worker processes."""
+    authority that old (vcsumo.signalling.fixed_times), lose the same time.  Runs in two worker processes."""
     base, _ = felez_capacity
     T = 8.0
     df = run_capacity_study(line_factory("felez_test"), network_factory("felez_test"), load_rolling_stock("felez2019"), tmp_path, [], [1],

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.cbf import CBFConfig, CBFSupervisor, barrier_from_stops
-from vcsumo.control.convoy_sim import flat_profile
+from vcsumo.sim.offline import flat_profile
 from vcsumo.control.proxies import sample_params
 from vcsumo.plant import PlantState, TrainPlant
 from vcsumo.rolling_stock import load_rolling_stock

@@ -8,7 +8,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from vcsumo.cli import main
+from vcsumo.cli.main import main
 
 from .conftest import write
 
@@ -32,7 +32,7 @@ def test_run_writes_a_complete_results_folder(in_tmp, capsys):
     assert meta["versions"]["eclipse-sumo"] == "1.28.0" and "line" in meta["inputs"]
     assert "wrote r" in capsys.readouterr().out
     # the scenario opens in SUMO on its own (sumo-gui uses the same file)
-    from vcsumo.sumo_paths import sumo_binary
+    from vcsumo.sim.sumo_paths import sumo_binary
 
     proc = subprocess.run([sumo_binary("sumo"), "-c", "scenario.sumocfg", "--end", "60"], cwd=out, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -62,13 +62,14 @@ def test_bad_input_exits_2_with_one_message_and_no_folder(in_tmp, capsys, args, 
     assert not Path("r").exists() and not list(in_tmp.glob("r.partial*"))
 
 
-def test_sumo_failure_is_reported_and_leaves_nothing(in_tmp, capsys):
+def test_sumo_failure_is_reported_and_leaves_nothing(in_tmp, capsys, monkeypatch):
+    monkeypatch.setenv("VCSUMO_CACHE", str(in_tmp / "cache"))
     line = write(in_tmp / "myline" / "line.yaml", "name: myline\nkm_start: 0\nkm_end: 5\nline_speed_kmh: 100\n"
                  "stations: [{id: A, name: A, km: 0.2, platform_length_m: 150}, {id: B, name: B, km: 4.8, platform_length_m: 150}]\n"
                  "signalling: {block_length_m: 500}\n")
     tt = write(in_tmp / "tt.yaml", "name: t\nline: myline\nservices: [{id: S, train: felez2019, origin: A, destination: B, departure: 0}]\n")
     assert main(["build-network", "--line", str(line)]) == 0
-    net = next((in_tmp / "myline" / "build").glob("*/line.net.xml"))
+    net = next((in_tmp / "cache" / "networks" / "myline").glob("*/line.net.xml"))
     net.write_text(net.read_text()[:2000])  # a truncated network file in the cache
     assert main(["run", "--line", str(line), "--timetable", str(tt), "--regime", "fbs", "--out", "r"]) == 2
     err = capsys.readouterr().err

@@ -31,7 +31,7 @@ from vcsumo.control.consensus import (
     string_gain_response,
     string_stability_delay_bound_s,
 )
-from vcsumo.control.convoy_sim import SpeedProfile, flat_profile, gap_errors, simulate_convoy
+from vcsumo.sim.offline import SpeedProfile, flat_profile, gap_errors, simulate_convoy
 from vcsumo.control.gap_reference import JerkLimitedTransition, SteadyGap
 from vcsumo.control.topology_graph import TOPOLOGIES
 from vcsumo.dynamics import acceleration, brake_force_limit, traction_limit

@@ -22,7 +22,7 @@ import pytest
 from vcsumo.control.base import Command, Observation
 from vcsumo.control.channel import Channel, ChannelConfig
 from vcsumo.control.consensus import ConsensusController, load_cbc_params
-from vcsumo.control.convoy_sim import SpeedProfile, simulate_convoy
+from vcsumo.sim.offline import SpeedProfile, simulate_convoy
 from vcsumo.control.faults import (
     CONTROLLER_EXCEPTION,
     CONTROLLER_FALLBACK,
@@ -39,7 +39,7 @@ from vcsumo.dynamics import brake_force_limit
 from vcsumo.errors import SumoError
 from vcsumo.rolling_stock import load_rolling_stock
 
-from .conftest import ROOT, write
+from .conftest import DATA, ROOT, write
 
 DT = 0.2
 V0 = 40.0
@@ -160,7 +160,7 @@ class _Stub:
 
 def _obs(t=0.0, v=30.0):
     from vcsumo.control.base import TrainStateMsg
-    from vcsumo.control.convoy_sim import flat_profile
+    from vcsumo.sim.offline import flat_profile
 
     return Observation(time_s=t, step_s=DT, ego_id="F", ego=TrainStateMsg(t, 0.0, v), params=ETR, profile=flat_profile(1e4))
 
@@ -191,7 +191,7 @@ needs far more than 60 m, so no plan is feasible; it falls back to
     every episode as ``solver_failure`` and the gap never falls below d_min."""
     from vcsumo.control.mpc import FollowerMPC, load_mpc_settings
 
-    settings = load_mpc_settings(ROOT / "controllers" / "mpc.yaml").model_copy(update={"sqp_max_iterations": 1})
+    settings = load_mpc_settings(DATA / "controllers" / "mpc.yaml").model_copy(update={"sqp_max_iterations": 1})
     p = load_rolling_stock("felez2019").params()
     ctrls = {}
 
@@ -245,10 +245,10 @@ class RaisingAt:
 @pytest.mark.sumo
 def test_vc_loop_brakes_a_follower_whose_controller_raises(tmp_path):
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
-    from vcsumo.simulation import Scenario, simulate
+    from vcsumo.sim.network import build_network
+    from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import load_timetable, plan_trains
-    from vcsumo.vc import make_vc_driver
+    from vcsumo.sim.vc_driver import make_vc_driver
 
     line = load_line("felez_test")
     net = build_network(line)
@@ -290,14 +290,14 @@ def _no_partials(folder: Path) -> None:
 @pytest.mark.sumo
 def test_sumo_failing_mid_run_is_one_error_and_leaves_no_results(tmp_path):
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder
-    from vcsumo.simulation import Scenario, simulate
+    from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import load_timetable, plan_trains
 
     line = load_line("felez_test")
     net = build_network(line)
-    tt, p = load_timetable(ROOT / "routes" / "felez_test" / "test.yaml", line)
+    tt, p = load_timetable(DATA / "routes" / "felez_test" / "test.yaml", line)
     trains = _late_broken_train(plan_trains(tt, p, line, net.topology, dt=0.5))
     seen = []
     with pytest.raises(SumoError) as exc:
@@ -315,7 +315,7 @@ def test_sumo_failing_mid_run_is_one_error_and_leaves_no_results(tmp_path):
 def test_cli_run_with_sumo_failing_mid_run(in_tmp, capsys, monkeypatch):
     """``vcsumo run``: exit status 2, one error line naming the network, no results folder."""
     import vcsumo.timetable as timetable
-    from vcsumo.cli import main
+    from vcsumo.cli.main import main
 
     real = timetable.plan_trains
     monkeypatch.setattr(timetable, "plan_trains", lambda *a, **k: _late_broken_train(real(*a, **k)))
@@ -340,7 +340,7 @@ services:
 def test_batch_with_a_killed_worker_keeps_the_other_runs(tmp_path):
     """SIGKILL the worker of one run every time it starts: that run becomes a failed row with the
     reason, the other runs finish, and no partial run folder is left."""
-    from vcsumo.batch import WORKER_DIED, read_batch, run_batch
+    from vcsumo.studies.batch import WORKER_DIED, read_batch, run_batch
 
     tts = [write(tmp_path / "tt" / f"{name}.yaml", BATCH_TT.format(name=name, n=n)) for name, n in (("two", 2), ("three", 3))]
     out = tmp_path / "batch"
@@ -386,7 +386,7 @@ def test_batch_with_a_killed_worker_keeps_the_other_runs(tmp_path):
 ORPHAN_SCRIPT = """
 import multiprocessing, os, sys, time
 from concurrent.futures import ProcessPoolExecutor
-from vcsumo.batch import silence_worker
+from vcsumo.studies.batch import silence_worker
 def work(x):
     time.sleep(60)
     return x

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from vcsumo.fixed_times import DelayedAuthority, authority_speed
+from vcsumo.signalling.fixed_times import DelayedAuthority, authority_speed
 
 
 def test_authority_speed_stops_exactly_at_the_end_of_authority():

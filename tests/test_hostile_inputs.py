@@ -29,7 +29,7 @@ from hypothesis import strategies as st
 
 from vcsumo.errors import InputError, VcsumoError
 
-from .conftest import ROOT, write
+from .conftest import DATA, ROOT, write
 
 # -------------------------------------------------------------------------------------------
 # The loaders the CLI uses, per file kind (path -> loaded object; raises VcsumoError)
@@ -77,19 +77,19 @@ def _load_cruise(p: Path):
 
 
 def _load_channel(p: Path):
-    from vcsumo.vc import load_channel
+    from vcsumo.sim.vc_driver import load_channel
 
     return load_channel(p)
 
 
 def _load_guard(p: Path):
-    from vcsumo.vc import load_guard
+    from vcsumo.sim.vc_driver import load_guard
 
     return load_guard(p)
 
 
 def _load_study(p: Path):
-    from vcsumo.study_files import load_study, study_arguments
+    from vcsumo.cli.study_files import load_study, study_arguments
 
     st_ = load_study(p)
     study_arguments(st_, p, None)
@@ -109,26 +109,26 @@ dwell: {probability: 0.1, distribution: uniform, min_s: 10, max_s: 60}
 
 # (kind, text of a valid file, loader)
 FILES = {
-    "line felez_test": ((ROOT / "networks" / "felez_test" / "line.yaml").read_text(), _load_line),
-    "line hcmc_line1": ((ROOT / "networks" / "hcmc_line1" / "line.yaml").read_text(), _load_line),
-    "train etr1000": ((ROOT / "networks" / "rolling_stock" / "etr1000.yaml").read_text(), _load_stock),
-    "train terlizzi2024_follower": ((ROOT / "networks" / "rolling_stock" / "terlizzi2024_follower.yaml").read_text(), _load_stock),
-    "controller cbc": ((ROOT / "controllers" / "cbc.yaml").read_text(), _load_cbc),
-    "controller cbc_liu": ((ROOT / "controllers" / "cbc_liu.yaml").read_text(), _load_cbc),
-    "controller mpc": ((ROOT / "controllers" / "mpc.yaml").read_text(), _load_mpc),
-    "controller cbf": ((ROOT / "controllers" / "cbf.yaml").read_text(), _load_cbf),
-    "controller cruise": ((ROOT / "controllers" / "cruise_terlizzi2024.yaml").read_text(), _load_cruise),
-    "channel": ((ROOT / "controllers" / "channel.yaml").read_text(), _load_channel),
-    "guard": ((ROOT / "controllers" / "guard.yaml").read_text(), _load_guard),
-    "study capacity": ((ROOT / "studies" / "capacity_firenze_bologna.yaml").read_text(), _load_study),
-    "study junction": ((ROOT / "studies" / "junction_milano_bologna.yaml").read_text(), _load_study),
-    "study batch": ((ROOT / "studies" / "batch_firenze_bologna.yaml").read_text(), _load_study),
-    "study headway": ((ROOT / "studies" / "headway_firenze_bologna.yaml").read_text(), _load_study),
+    "line felez_test": ((DATA / "networks" / "felez_test" / "line.yaml").read_text(), _load_line),
+    "line hcmc_line1": ((DATA / "networks" / "hcmc_line1" / "line.yaml").read_text(), _load_line),
+    "train etr1000": ((DATA / "networks" / "rolling_stock" / "etr1000.yaml").read_text(), _load_stock),
+    "train terlizzi2024_follower": ((DATA / "networks" / "rolling_stock" / "terlizzi2024_follower.yaml").read_text(), _load_stock),
+    "controller cbc": ((DATA / "controllers" / "cbc.yaml").read_text(), _load_cbc),
+    "controller cbc_liu": ((DATA / "controllers" / "cbc_liu.yaml").read_text(), _load_cbc),
+    "controller mpc": ((DATA / "controllers" / "mpc.yaml").read_text(), _load_mpc),
+    "controller cbf": ((DATA / "controllers" / "cbf.yaml").read_text(), _load_cbf),
+    "controller cruise": ((DATA / "controllers" / "cruise_terlizzi2024.yaml").read_text(), _load_cruise),
+    "channel": ((DATA / "controllers" / "channel.yaml").read_text(), _load_channel),
+    "guard": ((DATA / "controllers" / "guard.yaml").read_text(), _load_guard),
+    "study capacity": ((DATA / "studies" / "capacity_firenze_bologna.yaml").read_text(), _load_study),
+    "study junction": ((DATA / "studies" / "junction_milano_bologna.yaml").read_text(), _load_study),
+    "study batch": ((DATA / "studies" / "batch_firenze_bologna.yaml").read_text(), _load_study),
+    "study headway": ((DATA / "studies" / "headway_firenze_bologna.yaml").read_text(), _load_study),
     "delays": (DELAYS, _load_delays),
 }
 TIMETABLES = {
-    "timetable hcmc_line1/base": ("hcmc_line1", (ROOT / "routes" / "hcmc_line1" / "base.yaml").read_text()),
-    "timetable felez_test/convoy": ("felez_test", (ROOT / "routes" / "felez_test" / "convoy.yaml").read_text()),
+    "timetable hcmc_line1/base": ("hcmc_line1", (DATA / "routes" / "hcmc_line1" / "base.yaml").read_text()),
+    "timetable felez_test/convoy": ("felez_test", (DATA / "routes" / "felez_test" / "convoy.yaml").read_text()),
 }
 
 
@@ -136,7 +136,7 @@ TIMETABLES = {
 def load_timetable_on(line_factory, network_factory):
     """Timetable loader of ``vcsumo run``: load, check against the line, plan every train, form convoys."""
     from vcsumo.timetable import load_timetable, plan_trains
-    from vcsumo.vc import convoys_from_timetable
+    from vcsumo.sim.vc_driver import convoys_from_timetable
 
     def load(line_name: str, p: Path):
         line = line_factory(line_name)
@@ -502,7 +502,7 @@ def test_default_out_stays_under_results(in_tmp):
 
 def test_controller_specs_cannot_steer_case_folders_out(tmp_path, line_factory):
     """Capacity cases and batch runs are named after the controller spec, which may be a path."""
-    from vcsumo.batch import plan_runs
+    from vcsumo.studies.batch import plan_runs
     from vcsumo.delays import NO_DELAYS
     from vcsumo.studies.capacity import Case, _case_dir
 
@@ -510,14 +510,14 @@ def test_controller_specs_cannot_steer_case_folders_out(tmp_path, line_factory):
     evil = "cbc:../../../../../../tmp/evil.yaml"
     d = _case_dir(out, Case("up", "vc", evil, 2, "non-stop"))
     assert d.parent == out / "runs" and (out / "runs") in d.resolve().parents
-    specs = plan_runs(line_factory("felez_test"), [ROOT / "routes" / "felez_test" / "convoy.yaml"], ["vc"], [1], [evil], NO_DELAYS, out)
+    specs = plan_runs(line_factory("felez_test"), [DATA / "routes" / "felez_test" / "convoy.yaml"], ["vc"], [1], [evil], NO_DELAYS, out)
     assert specs and all(Path(s.run_dir).parent == (out / "runs").resolve() for s in specs)
 
 
 @pytest.mark.parametrize("out,ok", [("../../..", False), ("/tmp/elsewhere", False), ("sub/../../x", False), ("~/x", False),
                                     ("res/capacity_1", True), ("res", True)])
 def test_study_file_out_cannot_leave_the_current_folder(tmp_path, out, ok):
-    from vcsumo.study_files import load_study
+    from vcsumo.cli.study_files import load_study
 
     f = write(tmp_path / "s.yaml", f"study: capacity\nline: felez_test\ncontrollers: [cbc]\nout: '{out}'\n")
     if ok:
@@ -533,13 +533,13 @@ def test_study_file_out_cannot_leave_the_current_folder(tmp_path, out, ok):
 
 
 def _cli_cases(d: Path) -> list[tuple[list[str], Path, str]]:
-    line = (ROOT / "networks" / "felez_test" / "line.yaml").read_text()
+    line = (DATA / "networks" / "felez_test" / "line.yaml").read_text()
     bad_line = write(d / "badline" / "line.yaml", line.replace("block_length_m: 500", "block_length_m: 1000000"))
     tag_line = write(d / "tagline" / "line.yaml", '!!python/object/apply:os.system ["touch pwned"]\n')
     bin_line = d / "binline" / "line.yaml"
     bin_line.parent.mkdir()
     bin_line.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")
-    tt = (ROOT / "routes" / "felez_test" / "test.yaml").read_text()
+    tt = (DATA / "routes" / "felez_test" / "test.yaml").read_text()
     bad_tt = write(d / "tt_bad.yaml", tt.replace("every_s: 60", "every_s: -60"))
     dup_tt = write(d / "tt_dup.yaml", tt + "name: again\n")
     evil_tt = write(d / "tt_evil.yaml", tt.replace("name: test", "name: ../../../evil"))
@@ -561,7 +561,7 @@ def _cli_cases(d: Path) -> list[tuple[list[str], Path, str]]:
 
 
 def test_cli_broken_files_exit_2_with_one_line(in_tmp, capsys):
-    from vcsumo.cli import main
+    from vcsumo.cli.main import main
 
     for args, path, words in _cli_cases(in_tmp):
         assert main(args) == 2, args
@@ -588,7 +588,7 @@ def test_cli_subprocess_no_traceback(in_tmp):
 
 def test_cli_unwritable_out_is_one_line(in_tmp, capsys):
     """A results folder that cannot be created is the user's to fix: exit 2, one line naming it."""
-    from vcsumo.cli import main
+    from vcsumo.cli.main import main
 
     assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "fbs", "--out", "/proc/vcsumo-nope/r"]) == 2
     cap = capsys.readouterr()

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from vcsumo.cli_junction import junction_cmd
+from vcsumo.cli.junction import junction_cmd
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import load_line
 from vcsumo.studies.junction import JUNCTION_COLUMNS, default_junctions, merge_direction, partner_junction, resolve_junctions
@@ -173,7 +173,7 @@ def test_violations_and_signals_are_counted_from_the_runs(study):
 
 @pytest.mark.sumo
 def test_split_only_and_merge_only_directions(tmp_path):
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.junction import run_junction_study
 
@@ -194,12 +194,12 @@ def test_split_only_and_merge_only_directions(tmp_path):
 
 
 def test_junction_study_file_runs_the_command(in_tmp, capsys, root):
-    from vcsumo.cli import main
-    from vcsumo.study_files import load_study, study_arguments
+    from vcsumo.cli.main import main
+    from vcsumo.cli.study_files import load_study, study_arguments
 
     # the shipped files map onto the command line of `vcsumo study junction`
-    st = load_study(root / "studies" / "junction_milano_bologna.yaml")
-    args = study_arguments(st, root / "studies" / "junction_milano_bologna.yaml", None)
+    st = load_study(root / "vcsumo" / "data" / "studies" / "junction_milano_bologna.yaml")
+    args = study_arguments(st, root / "vcsumo" / "data" / "studies" / "junction_milano_bologna.yaml", None)
     assert args[:2] == ["study", "junction"] and args[args.index("--junction") + 1] == "venezia"
     assert args[args.index("--junction-signal") + 1] == "braking-curve"
     # through `vcsumo study run`: a bad junction id is one error naming the line file and field, exit 2, no folder

@@ -145,7 +145,7 @@ def test_fuzzed_line_files_never_crash(tmp_path_factory, path, value):
 def test_bad_rolling_stock_file(tmp_path, root, old, new, field, words):
     from vcsumo.rolling_stock import load_rolling_stock
 
-    text = (root / "networks" / "rolling_stock" / "etr1000.yaml").read_text()
+    text = (root / "vcsumo" / "data" / "networks" / "rolling_stock" / "etr1000.yaml").read_text()
     assert old in text
     path = write(tmp_path / "mytrain.yaml", text.replace(old, new))
     with pytest.raises(InputError) as exc:

@@ -2,13 +2,13 @@
 
 import pytest
 
-from vcsumo.network import build_network, fingerprint
+from vcsumo.sim.network import build_network, fingerprint
 
 pytestmark = pytest.mark.sumo
 
 
 def test_network_in_sumo_has_every_signal_and_platform(network_factory, tmp_path):
-    from vcsumo.sumo_backend import SumoBackend
+    from vcsumo.sim.sumo_backend import SumoBackend
 
     net = network_factory("firenze_bologna")
     topo = net.topology
@@ -42,7 +42,8 @@ def test_cache_is_reused_and_rebuilt_on_change(tmp_path):
 
 
 def test_netconvert_failure_is_one_clear_error(tmp_path, monkeypatch):
-    from vcsumo import network as network_mod
+    monkeypatch.setenv("VCSUMO_CACHE", str(tmp_path / "cache"))
+    from vcsumo.sim import network as network_mod
     from vcsumo.errors import SumoError
     from vcsumo.line import load_line
 
@@ -59,4 +60,4 @@ def test_netconvert_failure_is_one_clear_error(tmp_path, monkeypatch):
     with pytest.raises(SumoError) as exc:
         build_network(load_line(src), force=True)
     assert str(src) in str(exc.value) and "netconvert failed" in str(exc.value)
-    assert not any(p.name.startswith(".") for p in (src.parent / "build").iterdir())
+    assert not any(p.name.startswith(".") for p in (tmp_path / "cache" / "networks" / "broken").iterdir())

@@ -5,7 +5,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from vcsumo.cli import main
+from vcsumo.cli.main import main
 
 
 def test_reproduce_felez2019_mb_cli(in_tmp, capsys):

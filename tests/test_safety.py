@@ -5,7 +5,7 @@ import math
 import pandas as pd
 import pytest
 
-from vcsumo.cli import main
+from vcsumo.cli.main import main
 from vcsumo.control.base import Command
 from vcsumo.errors import InputError
 from vcsumo.studies.safety import (
@@ -129,6 +129,6 @@ def test_study_file_runs_the_campaign_and_is_validated(tmp_path):
     bad = tmp_path / "b.yaml"
     bad.write_text("study: safety\nlines: [hcmc_line1]\nscenarois: 10\n")
     with pytest.raises(InputError, match="scenarois"):
-        from vcsumo.study_files import load_study
+        from vcsumo.cli.study_files import load_study
 
         load_study(bad)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from vcsumo.line import load_line
-from vcsumo.network import build_network
+from vcsumo.sim.network import build_network
 from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.running_time import Stop, unhindered_run
-from vcsumo.simulation import Scenario, simulate
+from vcsumo.sim.loop import Scenario, simulate
 from vcsumo.timetable import load_timetable, plan_trains
 
 from .conftest import write

@@ -22,7 +22,7 @@ def test_shipped_timetables_plan(root):
     for name in shipped_lines():
         line = load_line(name)
         topo = build_topology(line)
-        files = sorted((root / "routes" / name).glob("*.yaml"))
+        files = sorted((root / "vcsumo" / "data" / "routes" / name).glob("*.yaml"))
         assert files, f"no timetable shipped for {name}"
         for f in files:
             tt, path = load_timetable(f, line)

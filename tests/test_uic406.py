@@ -6,11 +6,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vcsumo.blocking_time import BrakingRule
+from vcsumo.signalling.blocking_time import BrakingRule
 from vcsumo.errors import VcsumoError
 from vcsumo.running_time import Stop, time_at, unhindered_run
 from vcsumo.timetable import load_timetable, plan_trains
-from vcsumo.uic406 import (
+from vcsumo.signalling.uic406 import (
     GapRule,
     capacity_consumption,
     compress,

@@ -7,13 +7,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vcsumo.cli import main
+from vcsumo.cli.main import main
 from vcsumo.errors import InputError
 from vcsumo.line import load_line
-from vcsumo.network import build_network
-from vcsumo.simulation import Scenario, simulate
+from vcsumo.sim.network import build_network
+from vcsumo.sim.loop import Scenario, simulate
 from vcsumo.timetable import load_timetable, plan_trains
-from vcsumo.vc import guard_speed, make_vc_driver
+from vcsumo.sim.vc_driver import guard_speed, make_vc_driver
 
 from .conftest import write
 
@@ -115,7 +115,7 @@ def test_convoy_with_unequal_repeats_is_rejected(tmp_path):
 
 def test_guard_decelerations_are_conservative():
     from vcsumo.rolling_stock import load_rolling_stock
-    from vcsumo.vc import guaranteed_decel, strongest_decel
+    from vcsumo.sim.vc_driver import guaranteed_decel, strongest_decel
 
     p = load_rolling_stock("etr1000").params()
     # follower: emergency force over M·rho, only A of the resistance, the downhill counted against it

@@ -34,7 +34,7 @@ from vcsumo.units import G
 CURVE_COEFF_M2PS2 = 6.0
 """k_c in F_R = M·k_c/R (eq. 2c): 600/R N/kN, i.e. about 6/R m/s² per unit mass."""
 
-_V_EPS = 0.1
+V_EPS_MPS = 0.1
 """Speed below which power limits are evaluated at this speed (avoids P/0), m/s."""
 
 
@@ -128,7 +128,7 @@ def curve_equivalent_gradient(radius_m: float) -> float:
 
 def traction_limit(p: TrainParams, v: Any) -> Any:
     """Maximum tractive force min(M·a_dr, P_dr/v), N (eq. 4a, 4b)."""
-    return fmin(p.max_traction_n, p.max_power_w / fmax(v, _V_EPS))
+    return fmin(p.max_traction_n, p.max_power_w / fmax(v, V_EPS_MPS))
 
 
 def brake_force_limit(p: TrainParams, v: Any) -> Any:
@@ -136,7 +136,7 @@ def brake_force_limit(p: TrainParams, v: Any) -> Any:
     f = p.mass_kg * p.service_brake_decel_mps2
     if math.isinf(p.max_brake_power_w):
         return f + 0.0 * v
-    return fmin(f, p.max_brake_power_w / fmax(v, _V_EPS))
+    return fmin(f, p.max_brake_power_w / fmax(v, V_EPS_MPS))
 
 
 def acceleration(p: TrainParams, v: Any, u: Any, gradient: Any = 0.0, tunnel_factor: Any = 1.0, curve_n: Any = 0.0) -> Any:
@@ -214,7 +214,7 @@ def discrete_stop_speed(gap_m: float, decel: float, dt: float, reaction_steps: f
     Solves v²/(2b) + v·dt·(reaction_steps + ½) = gap.  With ``reaction_steps = 0`` this is how
     SUMO's Rail model approaches a stop, a red signal or (moving block) the braking point behind
     the train ahead: its braking distance is v²/(2b) + ½·Δt·v (measured, see
-    :func:`vcsumo.blocking_time.sumo_reaction_time`).
+    :func:`vcsumo.signalling.blocking_time.sumo_reaction_time`).
     """
     if gap_m <= 0:
         return 0.0

@@ -258,14 +258,15 @@ def check_line(line: LineFile) -> list[tuple[str, str]]:
 def project_root() -> Path:
     """The folder holding ``networks/``, ``routes/``, ``controllers/`` and ``studies/``.
 
-    ``$VCSUMO_HOME`` if set, else the repository that contains this package.
+    The data shipped inside the package (``vcsumo/data``, installed with it as package data), or
+    ``$VCSUMO_HOME`` if set (a folder of the same shape, e.g. your own lines and timetables).
     """
     import os
 
     env = os.environ.get("VCSUMO_HOME")
     if env:
         return Path(env).resolve()
-    return Path(__file__).resolve().parent.parent
+    return Path(__file__).resolve().parent / "data"
 
 
 def shipped_lines() -> list[str]:

@@ -89,6 +89,11 @@ class RouteProfile:
         )
 
     # ---------------------------------------------------------------------------------------
+    def signal_positions(self, topo: Topology) -> list[float]:
+        """Route positions (m) of the rail signals at the ends of the route's edges (not the last)."""
+        signals = topo.signal_nodes()
+        return [float(self.starts_m[i] + self.lengths_m[i]) for i, eid in enumerate(self.edges[:-1]) if topo.edges[eid].to_node in signals]
+
     def index_at(self, s: float) -> int:
         """Index of the edge containing position s (the later edge at a boundary)."""
         starts = self._starts

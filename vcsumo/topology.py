@@ -1,6 +1,6 @@
 """Track topology: the line turned into directed tracks, nodes, edges, signals and platforms.
 
-This is the single source of geometry for both the SUMO network (:mod:`vcsumo.network`) and
+This is the single source of geometry for both the SUMO network (:mod:`vcsumo.sim.network`) and
 vcsumo's own route profiles (:mod:`vcsumo.route_profile`), so kilometres, speeds, gradients and
 tunnels are identical in the plant and in the model.
 

@@ -54,7 +54,7 @@ from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Message, Observation
-from vcsumo.control.proxies import _V_EPS, BoxBounds, RobustProxies, RouteBounds, StopIntegral
+from vcsumo.control.proxies import V_EPS_MPS, BoxBounds, RobustProxies, RouteBounds, StopIntegral
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.units import G
@@ -176,7 +176,7 @@ class BarrierModel:
         """Lower bound ε·α̲(x2) + A̲/M̄ of the follower's deceleration under K_E^F, without the grade, m/s²."""
         # ε·brake_decel_low(v) + A̲/M̄ with the box constants looked up once (same arithmetic)
         lo, p_lo, m_hi, rho = self._f_brake_low
-        vv = _V_EPS if _V_EPS > v else v  # max(v, V_EPS)
+        vv = V_EPS_MPS if V_EPS_MPS > v else v  # max(v, V_EPS)
         x = p_lo / (m_hi * vv)
         return self._f_epsilon * ((x if x < lo else lo) / rho) + self._f_resist_mps2
 
@@ -258,7 +258,7 @@ class BarrierModel:
         if self.profile_mode:
             # follower_brake_decel(v) written out (the hot path of the supervisor)
             lo, p_lo, m_hi, rho = self._f_brake_low
-            x = p_lo / (m_hi * (_V_EPS if _V_EPS > v else v))
+            x = p_lo / (m_hi * (V_EPS_MPS if V_EPS_MPS > v else v))
             a = self._f_epsilon * ((x if x < lo else lo) / rho) + self._f_resist_mps2
             stop = self.stops_follower.stop_point(s, v, a)
         else:

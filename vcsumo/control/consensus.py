@@ -50,7 +50,7 @@ from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Message, Observation
 from vcsumo.control.gap_reference import GapReference, GapSample, SteadyGap
 from vcsumo.control.topology_graph import ConvoyGraph, TopologyName, convoy_graph
-from vcsumo.dynamics import _V_EPS, TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance, traction_limit
+from vcsumo.dynamics import V_EPS_MPS, TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance, traction_limit
 from vcsumo.errors import InputError
 from vcsumo.units import G
 
@@ -153,7 +153,7 @@ def _envelope(p: TrainParams, v: float, tf: float, grad: float) -> tuple[float, 
     if type(v) is not float or type(tf) is not float or type(grad) is not float or v != v:
         return (float(traction_limit(p, v)), -float(brake_force_limit(p, v)),
                 float(running_resistance(p, v, tf)) + float(gradient_force(p, grad)))
-    v_pos = v if v > _V_EPS else _V_EPS  # max(v, V_EPS) for a number
+    v_pos = v if v > V_EPS_MPS else V_EPS_MPS  # max(v, V_EPS) for a number
     f_tr = p.max_power_w / v_pos
     f_max = p.max_traction_n if p.max_traction_n <= f_tr else f_tr
     f_br = p.mass_kg * p.service_brake_decel_mps2

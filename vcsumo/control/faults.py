@@ -2,8 +2,8 @@
 
 :class:`FaultStage` wraps a controller (and optionally its safety supervisor, e.g. the CBF of
 Terlizzi et al.) and has the one verb of every controller, ``make_step(obs) -> Command``.  It is
-used by the SUMO loop (:class:`vcsumo.vc.VCDriver`) and by the offline simulator
-(:func:`vcsumo.control.convoy_sim.simulate_convoy`).  Each step it
+used by the SUMO loop (:class:`vcsumo.sim.vc_driver.VCDriver`) and by the offline simulator
+(:func:`vcsumo.sim.offline.simulate_convoy`).  Each step it
 
 1. checks the observation: the ego state (time, position, speed, applied force), the sensed gap and
    speed of the predecessor and every received message (time stamp, position, speed and, when sent,

@@ -47,12 +47,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vcsumo.dynamics import TrainParams
+from vcsumo.dynamics import TrainParams, V_EPS_MPS
 from vcsumo.rolling_stock import RollingStock, UncertaintyBox
 from vcsumo.route_profile import RouteProfile
 from vcsumo.units import G
 
-_V_EPS = 0.1
 """Speed below which power limits are evaluated at this speed (as :mod:`vcsumo.dynamics`), m/s."""
 
 
@@ -167,18 +166,18 @@ class BoxBounds:
 
     def robust_traction_max_n(self, v: float) -> float:
         """Largest traction force every train in the box can deliver at speed v, N (eq. 6a, 6b, 16)."""
-        return min(self.mass_low_kg * self.accel_low_mps2, self.power_low_w / max(v, _V_EPS))
+        return min(self.mass_low_kg * self.accel_low_mps2, self.power_low_w / max(v, V_EPS_MPS))
 
     def robust_brake_max_n(self, v: float) -> float:
         """Largest braking force (magnitude) every train in the box can deliver at speed v, N.
 
         −robust_brake_max_n(v) = min 𝒰(x) of eq. 16–17: the emergency input of Definition 11.
         """
-        return min(self.mass_low_kg * self.brake_decel_low_mps2, self.brake_power_low_w / max(v, _V_EPS))
+        return min(self.mass_low_kg * self.brake_decel_low_mps2, self.brake_power_low_w / max(v, V_EPS_MPS))
 
     def strongest_brake_n(self, v: float) -> float:
         """Largest braking force (magnitude) any train in the box may develop at speed v, N."""
-        return min(self.mass_high_kg * self.brake_decel_high_mps2, self.brake_power_high_w / max(v, _V_EPS))
+        return min(self.mass_high_kg * self.brake_decel_high_mps2, self.brake_power_high_w / max(v, V_EPS_MPS))
 
     def brake_decel_low(self, v: float) -> float:
         """α̲(x2) = min{a̲_br, P̲_br/(M̄·x2)}: the weakest full-brake deceleration in the box, m/s² (§V).
@@ -187,11 +186,11 @@ class BoxBounds:
         :meth:`strongest_brake_n`, which every train saturates at its own envelope) decelerates by
         min(a_br, P_br/(M·v)) ≥ α̲(v) from braking alone.
         """
-        return min(self.brake_decel_low_mps2, self.brake_power_low_w / (self.mass_high_kg * max(v, _V_EPS))) / self.rotating_mass_factor
+        return min(self.brake_decel_low_mps2, self.brake_power_low_w / (self.mass_high_kg * max(v, V_EPS_MPS))) / self.rotating_mass_factor
 
     def accel_high(self, v: float) -> float:
         """Largest tractive acceleration any train in the box can reach at speed v, m/s² (ā_dr, eq. 22)."""
-        return min(self.accel_high_mps2, self.power_high_w / (self.mass_low_kg * max(v, _V_EPS))) / self.rotating_mass_factor
+        return min(self.accel_high_mps2, self.power_high_w / (self.mass_low_kg * max(v, V_EPS_MPS))) / self.rotating_mass_factor
 
 
 def sample_params(stock: RollingStock, rng: np.random.Generator, corner: bool = False) -> TrainParams:

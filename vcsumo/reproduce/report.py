@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from vcsumo.plots import plot_felez2019, plot_terlizzi2024
+from vcsumo.plots.charts import plot_felez2019, plot_terlizzi2024
 
 FELEZ_COLUMNS = ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_distance_deviation_pct", "stop_delay_s", "paper_stop_delay_s",
                  "gap_at_rest_m", "min_gap_m", "collisions", "infeasible_steps", "a_follower_mps2", "solve_time_median_ms", "wall_time_s"]

@@ -15,7 +15,7 @@ For each direction, stopping pattern, regime and (VC) controller and convoy size
   up is reported as ``intra_convoy_gap_m``;
 * ``headway_sim_s`` is the time between the unit leaders passing the critical section in that run;
   ``headway_analytic_s`` is blocking-time theory on the leader's unhindered profile
-  (:mod:`vcsumo.blocking_time`: FBS blocks, MB absolute braking distance + 50 m; a VC convoy is one
+  (:mod:`vcsumo.signalling.blocking_time`: FBS blocks, MB absolute braking distance + 50 m; a VC convoy is one
   train whose last member passes each point τ_c(z) after its leader — the convoy's occupation,
   measured in the run (its coupling, stops and platform sharing) — and the next convoy's leader
   keeps moving-block distance to that last train: H(y) = t(z) + τ_c(z) − t(y), z = y + D + 50 m + L);
@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from vcsumo.blocking_time import (
+from vcsumo.signalling.blocking_time import (
     SUMO_MB_MARGIN_M,
     BrakingRule,
     fbs_blocking_times,
@@ -48,12 +48,12 @@ from vcsumo.blocking_time import (
 )
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
-from vcsumo.network import BuiltNetwork
+from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, speed_at, time_at, unhindered_run
-from vcsumo.simulation import MeasuringPoint, Scenario, simulate
-from vcsumo.studies.headway import release_km, signal_positions
+from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
+from vcsumo.studies.headway import release_km
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.timetable import PlannedStop, PlannedTrain
 
@@ -175,13 +175,13 @@ def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, st
     """(headway s, critical position m, FBS blocks) of blocking-time theory over [release, s_check].
 
     ``rear_lag_at``: for a VC convoy, the time its last train passes a position after its leader
-    (:func:`vcsumo.blocking_time.mb_headway_profile`).  ``fixed_time_s`` (route setting, MA
-    transmission, reaction; :mod:`vcsumo.fixed_times`) lengthens every block occupation and so
+    (:func:`vcsumo.signalling.blocking_time.mb_headway_profile`).  ``fixed_time_s`` (route setting, MA
+    transmission, reaction; :mod:`vcsumo.signalling.fixed_times`) lengthens every block occupation and so
     every headway by the same amount.
     """
     rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
     if regime == "fbs":
-        blocks = fbs_blocking_times(run, signal_positions(net, setup.track_edges, setup.full), setup.full.length_m, float(unit_length_m), rule)
+        blocks = fbs_blocking_times(run, setup.full.signal_positions(net.topology), setup.full.length_m, float(unit_length_m), rule)
         sel = blocks[blocks.approach_m <= s_check]
         i = sel.blocking_time_s.idxmax()
         return float(sel.loc[i, "blocking_time_s"]) + fixed_time_s, float(sel.loc[i, "block_start_m"]), blocks
@@ -211,7 +211,7 @@ def rear_lag(traces: dict, lead: PlannedTrain, last: PlannedTrain, full_length_m
 
 def _initial_gap(stock: RollingStock, v0: float, step_s: float) -> float:
     """Starting gap inside a convoy: the relative-braking gap at the release speed (guard formula) + 20 m."""
-    from vcsumo.vc import guaranteed_decel, strongest_decel
+    from vcsumo.sim.vc_driver import guaranteed_decel, strongest_decel
 
     p = stock.params()
     b_f = guaranteed_decel(p, v0, stock.emergency_brake_decel_mps2, -0.02)
@@ -253,7 +253,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         trains = [t for u in units for t in u]
         driver = None
         if case.regime == "vc":
-            from vcsumo.vc import VCDriver, load_channel
+            from vcsumo.sim.vc_driver import VCDriver, load_channel
 
             driver = VCDriver(units, case.controller, dt, seed, load_channel(None))
         probes[0] += 1
@@ -399,7 +399,7 @@ def run_capacity_study(
     ``workers`` > 1 runs cases in that many spawned processes (each with its own SUMO); a case that
     fails becomes a row with its ``error`` and the study goes on.
     """
-    from vcsumo.vc import parse_controller
+    from vcsumo.sim.vc_driver import parse_controller
 
     for c in controllers:
         parse_controller(c)
@@ -437,7 +437,7 @@ def run_capacity_study(
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        from vcsumo.batch import silence_worker
+        from vcsumo.studies.batch import silence_worker
 
         out.mkdir(parents=True, exist_ok=True)
         ctx = multiprocessing.get_context("spawn")
@@ -465,7 +465,7 @@ def run_capacity_study(
         if len(fbs):
             df.loc[g.index, "gain_vs_fbs"] = (g.capacity_trains_per_h / float(fbs.iloc[0])).round(3)
     df.to_csv(out / "capacity.csv", index=False)
-    from vcsumo.plots import plot_capacity, plot_time_distance_stairs
+    from vcsumo.plots.charts import plot_capacity, plot_time_distance_stairs
 
     plot_capacity(df[df.error.isna() | (df.error.astype(str) == "")], out / "capacity.png")
     plot_time_distance_stairs(examples, setups, out / "time_distance.png", line.name)

@@ -13,7 +13,7 @@ For each direction, regime (fbs, mb) and train type:
    of trains is released (``n_trains=2``): blocking-time theory's headway is a property of two
    consecutive trains, and with longer sequences a bigger bottleneck *downstream* of the point
    spills back and shows up upstream (a flow effect of the downstream section, not of the point);
-3. beside it, the analytic headway of blocking-time theory (:mod:`vcsumo.blocking_time`) from the
+3. beside it, the analytic headway of blocking-time theory (:mod:`vcsumo.signalling.blocking_time`) from the
    same unhindered profile and the braking rule SUMO's driver uses: the largest blocking time met
    between the release point and the measuring point.
 
@@ -31,7 +31,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from vcsumo.blocking_time import (
+from vcsumo.signalling.blocking_time import (
     SUMO_MB_MARGIN_M,
     BrakingRule,
     fbs_blocking_times,
@@ -42,11 +42,11 @@ from vcsumo.blocking_time import (
 )
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
-from vcsumo.network import BuiltNetwork
+from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import speed_at, unhindered_run
-from vcsumo.simulation import MeasuringPoint, Scenario, simulate
+from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.timetable import PlannedTrain
 
@@ -62,13 +62,6 @@ class HeadwayCase:
     direction: str
     regime: str
     stock: RollingStock
-
-
-def signal_positions(net: BuiltNetwork, edges: list[str], profile: RouteProfile) -> list[float]:
-    """Route positions (m) of the rail signals along a route."""
-    from vcsumo.fixed_times import route_signal_positions
-
-    return route_signal_positions(net.topology, edges, profile.starts_m, profile.lengths_m)
 
 
 def measuring_points(line: Line, points_km: list[float] | None) -> list[float]:
@@ -123,7 +116,7 @@ def analytic_headways(net: BuiltNetwork, trains: list[PlannedTrain], prof: Route
     """Function x_m -> (analytic headway s, critical position m) for the regime."""
     rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
     if regime == "fbs":
-        blocks = fbs_blocking_times(run, signal_positions(net, trains[0].edges, prof), prof.length_m, stock.length_m, rule)
+        blocks = fbs_blocking_times(run, prof.signal_positions(net.topology), prof.length_m, stock.length_m, rule)
         return lambda x: fbs_headway_at(blocks, x)
     profile = mb_headway_profile(run, stock.length_m, rule, SUMO_MB_MARGIN_M)
     return lambda x: mb_headway_at(profile, x)
@@ -221,7 +214,7 @@ def run_headway_study(
         rows += run_headway_case(line, net, st, d, r, sub, pts, step_s=step_s, n_trains=n_trains, tolerance_s=tolerance_s, progress=prog)
     df = pd.DataFrame(rows, columns=HEADWAY_COLUMNS)
     df.to_csv(out / "headway.csv", index=False)
-    from vcsumo.plots import plot_headway
+    from vcsumo.plots.charts import plot_headway
 
     plot_headway(df, out / "headway.png")
     return df

@@ -123,14 +123,14 @@ import pandas as pd
 
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Branch, Line
-from vcsumo.network import BuiltNetwork
+from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import speed_at, unhindered_run
-from vcsumo.simulation import MeasuringPoint, Scenario, Snapshot, simulate
+from vcsumo.sim.loop import MeasuringPoint, Scenario, Snapshot, simulate
 from vcsumo.timetable import PlannedTrain
 from vcsumo.dynamics import acceleration, discrete_approach_speed
-from vcsumo.vc import VCDriver, guaranteed_decel, guard_speed
+from vcsumo.sim.vc_driver import VCDriver, guaranteed_decel, guard_speed
 
 ROLES = ("branch", "main")
 SIGNAL_VARIANTS = ("sumo", "braking-curve")
@@ -484,7 +484,7 @@ def _log_counts(folder: Path) -> dict[str, int]:
 
 
 class JunctionVCDriver(VCDriver):
-    """The lead's :class:`~vcsumo.vc.VCDriver` with a train-to-train link handshake and, optionally,
+    """The lead's :class:`~vcsumo.sim.vc_driver.VCDriver` with a train-to-train link handshake and, optionally,
     a braking curve for the merge junction's signal (see the module doc).
 
     ``merge_stops``: follower id -> (route position of the junction signal in the follower's frame,
@@ -609,7 +609,7 @@ def simulate_pair(setup: Setup, case: Case, offset_s: float, solo_times: dict[st
     net = _junction_net(setup.net, nodes, out / "_additional", order)
     driver = None
     if case.regime == "vc" and len(trains) == 2:
-        from vcsumo.vc import load_channel, load_guard
+        from vcsumo.sim.vc_driver import load_channel, load_guard
 
         leader, follower = trains
         stops = None
@@ -876,7 +876,7 @@ def unhindered(m: dict, label: str, tolerance_s: float, setup: Setup) -> bool:
 def _relative_braking_offset(setup: Setup, dt: float) -> float:
     """Release interval a follower needs behind a leader at the common release point to keep the
     relative braking distance of the VC guard there (gradients over the braking distance ahead) + 60 m, s."""
-    from vcsumo.vc import guaranteed_decel, strongest_decel
+    from vcsumo.sim.vc_driver import guaranteed_decel, strongest_decel
 
     stock, v = setup.stock, setup.start_v["main"]
     p = stock.params()
@@ -1141,7 +1141,7 @@ def run_junction_study(
     Writes ``junction.csv``, ``junction_sweep.csv``, ``junction_trajectories.csv``,
     ``junction_signals.csv``, ``junction_<regime>.png`` and ``junction_sweep.png`` into ``out``.
     """
-    from vcsumo.vc import parse_controller
+    from vcsumo.sim.vc_driver import parse_controller
 
     controllers = ["cbc", "cbf-cbc"] if controllers is None else list(controllers)
     for c in controllers:
@@ -1213,7 +1213,7 @@ def run_junction_study(
     tdf = pd.concat(traj, ignore_index=True) if traj else pd.DataFrame()
     tdf.to_csv(out / "junction_trajectories.csv", index=False)
     (pd.concat(sigs, ignore_index=True) if sigs else pd.DataFrame()).to_csv(out / "junction_signals.csv", index=False)
-    from vcsumo.plots_junction import plot_junction_regimes, plot_junction_sweep
+    from vcsumo.plots.junction import plot_junction_regimes, plot_junction_sweep
 
     plot_junction_regimes(out / "junction_trajectories.csv", out)
     plot_junction_sweep(out / "junction_sweep.csv", out / "junction_sweep.png")

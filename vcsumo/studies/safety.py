@@ -50,7 +50,7 @@ leader's emergency brake (mean over followers) — what supervision and communic
 in normal running.
 
 Unsupervised controllers run without any safety filter (in the SUMO loop every controller also
-has the relative-braking guard of :mod:`vcsumo.vc`); their violation rates are the baseline the
+has the relative-braking guard of :mod:`vcsumo.sim.vc_driver`); their violation rates are the baseline the
 CBF supervisor is measured against.
 
 Rows are appended to ``safety.csv`` as scenarios finish (one whole line at a time), so an
@@ -78,7 +78,7 @@ from vcsumo.config import StrictModel
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.cbf import barrier_from_stops
 from vcsumo.control.channel import Channel, ChannelConfig, Window
-from vcsumo.control.convoy_sim import steady_force
+from vcsumo.sim.offline import steady_force
 from vcsumo.control.faults import FaultStage
 from vcsumo.control.proxies import sample_params
 from vcsumo.dynamics import TrainParams, brake_force_limit
@@ -288,7 +288,7 @@ class _Follower:
 
 
 def _param_file(spec: str | None, default: str) -> Path:
-    from vcsumo.vc import _param_path
+    from vcsumo.sim.vc_driver import _param_path
 
     return _param_path(spec, default)
 
@@ -319,7 +319,7 @@ def _mpc_instance(line: str, direction: str, params_spec: str | None, step_s: fl
 def make_follower(controller: str, route: LineRoute, step_s: float, cbf_config: str | None, predecessor: str = "T0", slot: int = 1,
                   position_error_m: float = 0.0, control_period_s: float | None = None) -> _Follower:
     """Nominal controller, CBF supervisor (``cbf-`` names), minimum safe gap and coupled spacing."""
-    from vcsumo.vc import parse_controller
+    from vcsumo.sim.vc_driver import parse_controller
 
     name, params_spec = parse_controller(controller)
     base = name.removeprefix("cbf-")
@@ -646,7 +646,7 @@ def scenario_task(args: tuple) -> list[dict]:
 def check_campaign(cfg: SafetyCampaign, source: Path | None = None) -> None:
     """Validate lines and controllers before anything runs (one clear error naming the input)."""
     from vcsumo.line import load_line
-    from vcsumo.vc import parse_controller
+    from vcsumo.sim.vc_driver import parse_controller
 
     for ln in cfg.lines:
         load_line(ln)
@@ -661,7 +661,7 @@ def check_campaign(cfg: SafetyCampaign, source: Path | None = None) -> None:
 
 def run_safety_campaign(cfg: SafetyCampaign, out: Path, workers: int = 1, progress: Callable[[int, int], None] | None = None) -> pd.DataFrame:
     """Run (or resume) the campaign into ``out``; returns every row of ``safety.csv``."""
-    from vcsumo.batch import _append, _repair, silence_worker
+    from vcsumo.studies.batch import _append, _repair, silence_worker
 
     check_campaign(cfg)
     out.mkdir(parents=True, exist_ok=True)
@@ -767,7 +767,7 @@ def bar_met(summary: pd.DataFrame, min_scenarios: int = 1000) -> bool:
 def write_safety_report(out: Path, cfg: SafetyCampaign, df: pd.DataFrame, summary: pd.DataFrame, wall_time_s: float) -> None:
     """``report/``: safety_runs.csv (this campaign's rows), safety_summary.csv, safety_gaps.png and meta.json."""
     from vcsumo.line import load_line
-    from vcsumo.plots_safety import plot_safety
+    from vcsumo.plots.safety import plot_safety
     from vcsumo.results import ResultsFolder
 
     inputs = {f"line_{ln}": load_line(ln).path for ln in cfg.lines}

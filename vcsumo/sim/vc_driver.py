@@ -1,6 +1,6 @@
 """Virtual coupling in the SUMO loop: convoys, messages, controllers and the safety filter.
 
-:class:`VCDriver` is the :class:`~vcsumo.simulation.Driver` of the ``vc`` regime.  Each step it
+:class:`VCDriver` is the :class:`~vcsumo.sim.loop.Driver` of the ``vc`` regime.  Each step it
 
 1. lets every convoy member send a train-to-train message through the seeded
    :class:`~vcsumo.control.channel.Channel` (state, and a predicted trajectory: the convoy leader's
@@ -70,7 +70,7 @@ from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import project_root
 from vcsumo.units import G
 from vcsumo.running_time import unhindered_run
-from vcsumo.simulation import Snapshot
+from vcsumo.sim.loop import Snapshot
 from vcsumo.timetable import PlannedTrain, TimetableFile
 
 VC_CONTROLLERS = ("mpc", "cbc", "cbf-mpc", "cbf-cbc", "cbf-cruise")

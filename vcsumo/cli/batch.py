@@ -1,9 +1,9 @@
 """``vcsumo batch``: timetable experiments with primary delays over regimes, controllers and seeds.
 
-A thin command in the style of :mod:`vcsumo.cli`: parse options, load inputs, call
-:func:`vcsumo.batch.run_batch` with a progress bar, print a summary table and where it wrote.
-Register it in :mod:`vcsumo.cli` with ``from vcsumo.cli_batch import batch_cmd`` and
-``cli.add_command(batch_cmd)`` (this module imports :mod:`vcsumo.cli` only when the command runs).
+A thin command in the style of :mod:`vcsumo.cli.main`: parse options, load inputs, call
+:func:`vcsumo.studies.batch.run_batch` with a progress bar, print a summary table and where it wrote.
+Register it in :mod:`vcsumo.cli.main` with ``from vcsumo.cli.batch import batch_cmd`` and
+``cli.add_command(batch_cmd)`` (this module imports :mod:`vcsumo.cli.main` only when the command runs).
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ import sys
 from pathlib import Path
 
 import click
+
+from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
 
 from vcsumo.errors import InputError
 
@@ -57,8 +59,7 @@ def batch_cmd(line_spec: str, timetables: str | None, regimes: str, n_seeds: int
     Writes batch.csv (one row per run), batch_trains.csv (one row per train and run), uic406.csv
     and report/ (summary table, delay and punctuality plots, meta.json).
     """
-    from vcsumo.batch import REGIMES, resolve_timetables, run_batch, summarize
-    from vcsumo.cli import _print_table, _progress, out_console  # here, so that cli.py may import this module anywhere
+    from vcsumo.studies.batch import REGIMES, resolve_timetables, run_batch, summarize
     from vcsumo.delays import load_delay_config
     from vcsumo.line import load_line
 
@@ -79,7 +80,7 @@ def batch_cmd(line_spec: str, timetables: str | None, regimes: str, n_seeds: int
     seeds = _seeds(n_seeds, first_seed)
     command = " ".join(["vcsumo"] + sys.argv[1:]) if Path(sys.argv[0]).name.startswith("vcsumo") else ""
 
-    with _progress() as prog:
+    with progress_bar() as prog:
         task = prog.add_task(f"batch {line.name}", total=None)
 
         def progress(done: int, total: int, row: dict | None) -> None:
@@ -99,7 +100,7 @@ def batch_cmd(line_spec: str, timetables: str | None, regimes: str, n_seeds: int
         view["punct_5min_%"] = (100 * view["punctuality_5min_share"]).round(1)
         view["uic406_%"] = view["capacity_consumption_pct"]
         view["uic406_cyc_%"] = view["capacity_consumption_cyclic_pct"]
-        _print_table(view, f"batch — {line.name}", ["timetable", "regime", "controller", "runs", "failed", "punct_3min_%", "punct_5min_%",
+        print_table(view, f"batch — {line.name}", ["timetable", "regime", "controller", "runs", "failed", "punct_3min_%", "punct_5min_%",
                                                     "mean_arrival_delay_s", "knock_on_delay_s", "uic406_%", "uic406_cyc_%", "collisions"])
     out_console.print(f"{len(df)} runs: {df.attrs['new_runs']} run now, {df.attrs['resumed_runs']} already in batch.csv; "
                       f"{df.attrs['failed_runs']} failed")

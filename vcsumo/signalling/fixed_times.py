@@ -20,7 +20,7 @@ towards that older end of authority:
   SUMO keeps it).
 
 The cap is the largest speed from which the train stops before the EoA with the service
-deceleration after SUMO's one-step reaction (:func:`vcsumo.blocking_time.sumo_reaction_time`):
+deceleration after SUMO's one-step reaction (:func:`vcsumo.signalling.blocking_time.sumo_reaction_time`):
 v²/(2b) + t_r·v ≤ EoA − position.  SUMO still applies its own (fresher) signal or gap logic, so
 the result is the stricter of the two.  Trains vcsumo's virtual-coupling controllers drive are not
 capped: inside a convoy, authority comes over the train-to-train channel and its delay is the
@@ -34,7 +34,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from vcsumo.blocking_time import sumo_mb_margin
+from vcsumo.signalling.blocking_time import sumo_mb_margin
 
 
 def authority_speed(distance_m: float, decel_mps2: float, reaction_s: float) -> float:
@@ -121,13 +121,3 @@ class DelayedAuthority:
                 continue
             out[tid] = authority_speed(eoa - st.s_m, self.decel.get(tid, 0.5), self.reaction_s)
         return out
-
-
-def route_signal_positions(topology, edges: list[str], starts_m, lengths_m) -> list[float]:
-    """Route positions (m) of the rail signals at the ends of a route's edges (not the last)."""
-    signals = topology.signal_nodes()
-    out = []
-    for i, eid in enumerate(edges):
-        if topology.edges[eid].to_node in signals and i < len(edges) - 1:
-            out.append(float(starts_m[i] + lengths_m[i]))
-    return out

@@ -1,8 +1,8 @@
 """``vcsumo study safety``: the Monte Carlo safety campaign (:mod:`vcsumo.studies.safety`).
 
-A thin command in the style of :mod:`vcsumo.cli`: build and validate the campaign parameters,
+A thin command in the style of :mod:`vcsumo.cli.main`: build and validate the campaign parameters,
 run (or resume) the campaign with a progress bar, write the report, print the summary table and
-whether the bar is met.  :mod:`vcsumo.cli` registers it under the ``study`` group.
+whether the bar is met.  :mod:`vcsumo.cli.main` registers it under the ``study`` group.
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 
 import click
+
+from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
 from pydantic import ValidationError
 
 from vcsumo.errors import InputError
@@ -48,7 +50,6 @@ def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers:
                channel_period_s: float, outage_probability: float, corner_probability: float, max_duration_s: float, cbf_config: str | None,
                out: Path | None) -> None:
     """Monte Carlo safety campaign: leader emergency brakes, lossy delayed channel, outages, uncertain trains, odometry errors."""
-    from vcsumo.cli import _print_table, _progress, out_console
     from vcsumo.studies.safety import SafetyCampaign, bar_met, run_safety_campaign, summarize_safety, write_safety_report
 
     try:
@@ -65,12 +66,12 @@ def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers:
     if out is None:
         out = Path("results") / f"safety-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
     t0 = time.perf_counter()
-    with _progress() as prog:
+    with progress_bar() as prog:
         task = prog.add_task(f"safety {cfg.scenarios} scenarios × {len(cfg.controllers)} controllers", total=1.0)
         df = run_safety_campaign(cfg, out, workers=n_workers, progress=lambda d, t: prog.update(task, completed=d / t if t else 1.0))
     summary = summarize_safety(df)
     write_safety_report(out, cfg, df, summary, time.perf_counter() - t0)
-    _print_table(summary, f"safety campaign — {cfg.scenarios} scenarios", ["controller", "supervised", "scenarios", "failed_runs", "scenarios_with_violation",
+    print_table(summary, f"safety campaign — {cfg.scenarios} scenarios", ["controller", "supervised", "scenarios", "failed_runs", "scenarios_with_violation",
                  "gap_violations", "collisions", "min_gap_margin_m", "started_outside_safe_set", "barrier_breaches", "emergency_activations_mean", "time_lost_s_mean"])
     met = bar_met(summary, min(cfg.scenarios, 1000))
     out_console.print(("bar met" if met else "bar NOT met") + ": CBF-supervised controllers have 0 gap violations and 0 collisions"

@@ -1,7 +1,7 @@
 """Finding SUMO: the binaries and data of the ``eclipse-sumo`` wheel, no SUMO_HOME needed.
 
 ``SUMO_HOME`` is set for this process (if the user has not set it) so SUMO validates XML and
-finds its data files.  Nothing here imports libsumo (see :mod:`vcsumo.sumo_backend`).
+finds its data files.  Nothing here imports libsumo (see :mod:`vcsumo.sim.sumo_backend`).
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vcsumo.errors import SumoError
-from vcsumo.sumo_paths import sumo_binary, sumo_home
+from vcsumo.sim.sumo_paths import sumo_binary, sumo_home
 
 SPEED_MODE_DEFAULT = 31
 SPEED_MODE_VC_FOLLOWER = 26

@@ -32,7 +32,7 @@ Metrics of a run (``BATCH_COLUMNS``; times in s):
 
 * arrival delay of a train = actual arrival at its destination − its *reference arrival*: the
   scheduled arrival, or, for a train without one, its scheduled departure + its unhindered
-  running time (:func:`vcsumo.uic406.reference_arrivals`: unhindered run, scheduled stops
+  running time (:func:`vcsumo.signalling.uic406.reference_arrivals`: unhindered run, scheduled stops
   honoured);
 * ``punctuality_3min_share`` / ``punctuality_5min_share``: share of the run's trains that arrived
   with an arrival delay ≤ 180 s / 300 s (trains that never arrived count as late);
@@ -41,7 +41,7 @@ Metrics of a run (``BATCH_COLUMNS``; times in s):
 * ``primary_delay_s``: sum of the injected delays; ``knock_on_delay_s``: sum over arrived trains
   of max(0, arrival delay − the primary delay the train carried), the secondary delay;
 * ``capacity_consumption_pct``: UIC 406 consumption of the timetable (no delays) under the run's
-  regime, maximum over the line sections (:mod:`vcsumo.uic406`; ``..._cyclic_pct`` with the cycle
+  regime, maximum over the line sections (:mod:`vcsumo.signalling.uic406`; ``..._cyclic_pct`` with the cycle
   closed);
 * ``min_gap_m``, ``gap_violations``, ``collisions``, ``emergency_brakes``: from the simulation.
 """
@@ -175,10 +175,10 @@ def run_one(spec: RunSpec) -> dict:
 
 
 def _run(spec: RunSpec) -> dict:
-    from vcsumo.network import build_network
-    from vcsumo.simulation import Scenario, simulate
+    from vcsumo.sim.network import build_network
+    from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import load_timetable, plan_trains
-    from vcsumo.uic406 import reference_arrivals
+    from vcsumo.signalling.uic406 import reference_arrivals
 
     line = load_line(spec.line_path)
     tt_path = Path(spec.timetable_path)
@@ -193,7 +193,7 @@ def _run(spec: RunSpec) -> dict:
     trains, delays = inject_delays(planned, cfg, spec.seed, spec.timetable_sha256)
     driver = None
     if spec.regime == "vc":
-        from vcsumo.vc import make_vc_driver
+        from vcsumo.sim.vc_driver import make_vc_driver
 
         driver = make_vc_driver(tt, tt_path, trains, spec.controller or DEFAULT_CONTROLLER, spec.step_length_s, spec.seed)
     ref = reference_arrivals(planned, spec.step_length_s)
@@ -410,9 +410,9 @@ def _uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, ste
             need.setdefault(s.timetable_sha256, (s, set()))[1].add(s.regime)
     if not need:
         return have
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.timetable import load_timetable, plan_trains
-    from vcsumo.uic406 import capacity_consumption, convoy_pairs
+    from vcsumo.signalling.uic406 import capacity_consumption, convoy_pairs
 
     net = build_network(line, block_length_m)
     new = []
@@ -610,7 +610,7 @@ def run_batch(
     tts = resolve_timetables(timetables, line)
     out = Path(out) if out is not None else default_batch_out(line, config_digest(delays), step_length_s, block_length_m)
     t_wall = time.perf_counter()
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
 
     build_network(line, block_length_m)  # once, before the workers need it
     specs = plan_runs(line, tts, regimes, seeds, controllers, delays, out, step_length_s, block_length_m, command)

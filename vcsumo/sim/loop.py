@@ -38,8 +38,8 @@ import pandas as pd
 
 from vcsumo.errors import SumoError, VcsumoError
 from vcsumo.line import Line
-from vcsumo.network import BuiltNetwork
-from vcsumo.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
+from vcsumo.sim.network import BuiltNetwork
+from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
 from vcsumo.timetable import PlannedTrain, routes_xml
 
 REGIMES = ("fbs", "mb", "vc")
@@ -115,7 +115,7 @@ class Scenario:
     as violations.  Trains driven by a vcsumo driver are always held to their ``safe_gap_m``."""
     fixed_time_s: float = 0.0
     """ETCS-style fixed times (route setting + MA transmission + reaction) the trains SUMO drives
-    see on top of SUMO's signalling, s (:mod:`vcsumo.fixed_times`)."""
+    see on top of SUMO's signalling, s (:mod:`vcsumo.signalling.fixed_times`)."""
     full_outputs: bool = True
     """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
     trace_speeds: bool = False
@@ -194,11 +194,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     dt = scn.step_length_s
     authority = None
     if scn.fixed_time_s > 0:
-        from vcsumo.fixed_times import DelayedAuthority, route_signal_positions
+        from vcsumo.signalling.fixed_times import DelayedAuthority
 
         authority = DelayedAuthority(
             scn.fixed_time_s, scn.regime, dt, {t.id: t.stock.service_brake_decel_mps2 for t in scn.trains},
-            {t.id: route_signal_positions(topo, t.profile.edges, t.profile.starts_m, t.profile.lengths_m) for t in scn.trains} if scn.regime == "fbs" else None,
+            {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.regime == "fbs" else None,
         )
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}

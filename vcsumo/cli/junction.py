@@ -1,9 +1,9 @@
 """``vcsumo study junction``: convoys merging and splitting at speed, against FBS and MB.
 
-A thin command in the style of :mod:`vcsumo.cli`: parse options, load inputs, call
+A thin command in the style of :mod:`vcsumo.cli.main`: parse options, load inputs, call
 :func:`vcsumo.studies.junction.run_junction_study` with a progress bar, print the table and where
-it wrote.  :mod:`vcsumo.cli` registers it under the ``study`` group (this module imports
-:mod:`vcsumo.cli` only when the command runs).
+it wrote.  :mod:`vcsumo.cli.main` registers it under the ``study`` group (this module imports
+:mod:`vcsumo.cli.main` only when the command runs).
 """
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+
+from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
 
 from vcsumo.errors import InputError, VcsumoError
 
@@ -54,13 +56,12 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
                  tolerance_s: float, resolution_s: float, window_m: float, approach_m: float, block_length_m: float | None, step_length: float,
                  vc_step_length: float, seed: int, out: Path | None) -> None:
     """Convoy merge and split at speed: formation, junction throughput, delay and safety under FBS, MB and VC."""
-    from vcsumo.cli import _print_table, _progress, out_console
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.junction import ROLES, SIGNAL_VARIANTS, resolve_junctions, run_junction_study
-    from vcsumo.vc import parse_controller
+    from vcsumo.sim.vc_driver import parse_controller
 
     for name, v in (("--step-length", step_length), ("--vc-step-length", vc_step_length)):
         if v <= 0 or v > 2:
@@ -86,7 +87,7 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
               "offsets_s": list(offs), "tolerance_s": tolerance_s, "resolution_s": resolution_s, "window_m": window_m, "approach_m": approach_m,
               "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length}
     with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params=params) as rf:
-        with _progress() as prog:
+        with progress_bar() as prog:
             task = prog.add_task(f"junction {line.name}", total=1.0)
 
             def upd(k: int, n: int, desc: str) -> None:
@@ -99,6 +100,6 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
     view = view.rename(columns={"junction_throughput_trains_per_h": "trains_per_h", "merging_service_delay_s": "delay_s", "leader_service": "leader",
                                 "formation_start_m_before_merge": "forms_before_m", "gap_violations": "violations"})
     view["min_gap_m"] = view.min_gap_merge_m.where(view.junction_kind == "merge", view.min_gap_split_m)
-    _print_table(view, f"junction — {line.name} ({name})", ["junction", "direction", "junction_kind", "leader", "regime", "controller", "trains_per_h",
+    print_table(view, f"junction — {line.name} ({name})", ["junction", "direction", "junction_kind", "leader", "regime", "controller", "trains_per_h",
                  "delay_s", "forms_before_m", "min_gap_m", "violations", "collisions"])
     out_console.print(f"wrote {out / 'junction.csv'}")

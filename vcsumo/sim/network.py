@@ -5,7 +5,8 @@ per piece of track, explicit ``length`` and kilometrage ``distance``), ``line.co
 connection, with the diverging speed through turnouts) and ``stations.add.xml`` (a ``trainStop``
 per platform and track), then runs netconvert from the ``eclipse-sumo`` wheel.
 
-Builds are cached in ``build/<fingerprint>/`` beside the line file; the fingerprint covers the
+Builds are cached in the user cache folder (``platformdirs.user_cache_dir("vcsumo")/networks/<line>/<fingerprint>/``,
+``$VCSUMO_CACHE`` if set), never inside the package or the source tree; the fingerprint covers the
 line file's bytes, the block-length override, the builder version and the SUMO version, so a
 changed line file is rebuilt and an unchanged one is not.  A build goes into a temporary folder
 first and is renamed into place, so concurrent runs never see half a network.
@@ -25,7 +26,7 @@ from xml.sax.saxutils import quoteattr
 
 from vcsumo.errors import SumoError
 from vcsumo.line import Line
-from vcsumo.sumo_paths import sumo_binary, sumo_version
+from vcsumo.sim.sumo_paths import sumo_binary, sumo_version
 from vcsumo.topology import Topology, build_topology
 
 BUILDER_VERSION = "5"
@@ -49,18 +50,23 @@ def fingerprint(line: Line, block_length_m: float | None) -> str:
     return h.hexdigest()[:16]
 
 
+def cache_dir() -> Path:
+    """Where built networks are cached: ``$VCSUMO_CACHE`` or the user cache folder (platformdirs)."""
+    env = os.environ.get("VCSUMO_CACHE")
+    if env:
+        return Path(env).expanduser().resolve()
+    from platformdirs import user_cache_dir
+
+    return Path(user_cache_dir("vcsumo", appauthor=False))
+
+
 def _build_root(line: Line) -> Path:
-    root = line.path.parent / "build"
+    root = cache_dir() / "networks" / line.name
     try:
         root.mkdir(parents=True, exist_ok=True)
-        probe = root / ".write-test"
-        probe.touch()
-        probe.unlink()
-        return root
-    except OSError:
-        cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vcsumo" / line.name
-        cache.mkdir(parents=True, exist_ok=True)
-        return cache
+    except OSError as exc:
+        raise SumoError(f"{root}: cannot create the network cache folder ({exc.strerror}); set VCSUMO_CACHE to a writable folder") from None
+    return root
 
 
 def build_network(line: Line, block_length_m: float | None = None, force: bool = False) -> BuiltNetwork:

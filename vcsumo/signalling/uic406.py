@@ -37,8 +37,8 @@ The blocks of a section are the stretches between consecutive signals in it (the
 boundary closes the last block).  A train's blocking time of block k [S_k, S_k+1] runs
 
 * from the moment it passes the *approach point* a_k, where a_k + D(v(a_k)) = S_k — computed by
-  :func:`vcsumo.blocking_time.fbs_blocking_times` with SUMO's braking rule (D = v²/(2b) + ½·Δt·v,
-  :func:`vcsumo.blocking_time.sumo_reaction_time`); a train standing at a stop approaches the
+  :func:`vcsumo.signalling.blocking_time.fbs_blocking_times` with SUMO's braking rule (D = v²/(2b) + ½·Δt·v,
+  :func:`vcsumo.signalling.blocking_time.sumo_reaction_time`); a train standing at a stop approaches the
   blocks ahead of it only once it departs (a block starting at its stop is blocked from the
   departure);
 * to the moment its tail clears S_k+1 (front at S_k+1 + L); a train ending its run inside the
@@ -46,15 +46,15 @@ boundary closes the last block).  A train's blocking time of block k [S_k, S_k+1
 
 ``regime`` chooses the blocks and the braking rule:
 
-* ``fbs`` — the line's signals (:func:`vcsumo.studies.headway.signal_positions`);
+* ``fbs`` — the line's signals (:meth:`vcsumo.route_profile.RouteProfile.signal_positions`);
 * ``mb`` — moving block as *virtual blocks* of ``virtual_block_m`` (default 25 m) with SUMO's
-  moving-block braking distance D(v) + 50 m (:data:`vcsumo.blocking_time.SUMO_MB_MARGIN_M`): the
+  moving-block braking distance D(v) + 50 m (:data:`vcsumo.signalling.blocking_time.SUMO_MB_MARGIN_M`): the
   stairs become the moving-block headway band (within ``virtual_block_m``/v);
 * ``vc`` — as ``mb``, except that a declared convoy follower approaches its own convoy leader at
   the relative-braking-distance gap ``vc_gap_m`` instead of D(v) + 50 m.
 
 No setup, sighting or release times are added (SUMO's signalling has none, as in
-:mod:`vcsumo.blocking_time`); ``setup_s`` and ``release_s`` add them to every block.
+:mod:`vcsumo.signalling.blocking_time`); ``setup_s`` and ``release_s`` add them to every block.
 
 Compression and consumption
 ---------------------------
@@ -88,10 +88,10 @@ from typing import Protocol
 import numpy as np
 import pandas as pd
 
-from vcsumo.blocking_time import SUMO_MB_MARGIN_M, BrakingRule, fbs_blocking_times, sumo_reaction_time
+from vcsumo.signalling.blocking_time import SUMO_MB_MARGIN_M, BrakingRule, fbs_blocking_times, sumo_reaction_time
 from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
-from vcsumo.network import BuiltNetwork
+from vcsumo.sim.network import BuiltNetwork
 from vcsumo.running_time import Stop, time_at, unhindered_run
 from vcsumo.timetable import PlannedTrain, TimetableFile
 from vcsumo.topology import Topology
@@ -429,7 +429,6 @@ def capacity_consumption(
     if window_s <= 0:
         raise VcsumoError(f"UIC 406: window {window_s} s must be positive")
     topo = net.topology
-    from vcsumo.studies.headway import signal_positions
 
     followers = {f: l for l, f in (convoys or [])} if regime == "vc" else {}
     cache = {} if cache is None else cache
@@ -469,7 +468,7 @@ def capacity_consumption(
             prof = t.profile
             rule_base = BrakingRule(t.stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
             if regime == "fbs":
-                markers = [x for x in signal_positions(net, t.edges, prof) if s_a - 1e-3 <= x < s_b - 1e-3]
+                markers = [x for x in prof.signal_positions(net.topology) if s_a - 1e-3 <= x < s_b - 1e-3]
                 rule: _Rule = rule_base
             else:
                 n = max(1, int(math.ceil((s_b - s_a) / virtual_block_m - 1e-9)))

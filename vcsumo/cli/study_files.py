@@ -178,7 +178,7 @@ def _check_train(spec: str) -> None:
 
 def _check_controller(spec: str) -> None:
     """A VC controller name (``cbc``, ``cbf-cbc``, ...), optionally with a parameter set after a colon."""
-    from vcsumo.vc import VC_CONTROLLERS, controllers_dir
+    from vcsumo.sim.vc_driver import VC_CONTROLLERS, controllers_dir
 
     name, _, params = spec.partition(":")
     if name not in VC_CONTROLLERS:

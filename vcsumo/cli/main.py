@@ -7,48 +7,12 @@ status 2; results folders are written completely or not at all (:mod:`vcsumo.res
 from __future__ import annotations
 
 import sys
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import click
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
 
+from vcsumo.cli.ui import console, out_console, print_table, progress_bar, progress_task
 from vcsumo.errors import VcsumoError
-
-console = Console(stderr=True)
-out_console = Console(width=None if sys.stdout.isatty() else 160)
-
-
-def _progress() -> Progress:
-    return Progress(
-        TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-        TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=False,
-    )
-
-
-@contextmanager
-def _task(progress: Progress, description: str) -> Iterator:
-    task = progress.add_task(description, total=1.0)
-
-    def update(done: float, total: float) -> None:
-        progress.update(task, completed=min(done / total, 1.0) if total else 1.0)
-
-    yield update
-    progress.update(task, completed=1.0)
-
-
-def _print_table(df, title: str, columns: list[str] | None = None) -> None:
-    cols = columns or list(df.columns)
-    table = Table(title=title, show_lines=False)
-    for c in cols:
-        table.add_column(c, justify="right" if df[c].dtype.kind in "fi" else "left")
-    for _, row in df[cols].iterrows():
-        table.add_row(*[f"{v:.2f}" if isinstance(v, float) else str(v) for v in row])
-    out_console.print(table)
-
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="vcsumo")
@@ -79,7 +43,7 @@ def lines_cmd() -> None:
 def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool) -> None:
     """Build (or reuse) the SUMO network of a line."""
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
 
     line = load_line(line_spec)
     net = build_network(line, block_length_m, force=force)
@@ -106,10 +70,10 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     if step_length is None:
         step_length = 0.1 if regime == "vc" else 0.5
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
-    from vcsumo.plots import plot_run
+    from vcsumo.sim.network import build_network
+    from vcsumo.plots.charts import plot_run
     from vcsumo.results import ResultsFolder, default_out
-    from vcsumo.simulation import Scenario, simulate
+    from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import load_timetable, plan_trains
 
     if step_length <= 0 or step_length > 2:
@@ -120,7 +84,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     trains = plan_trains(tt, tt_path, line, net.topology, dt=step_length)
     driver = None
     if regime == "vc":
-        from vcsumo.vc import make_vc_driver
+        from vcsumo.sim.vc_driver import make_vc_driver
 
         driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed, channel=channel)
     elif controller or channel:
@@ -128,7 +92,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     out = out or default_out("run", f"{line.name}-{tt.name}-{regime}")
     with ResultsFolder(out, inputs={"line": line.path, "timetable": tt_path}, seed=seed,
                        params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m}) as rf:
-        with _progress() as prog, _task(prog, f"{line.name} {tt.name} {regime}") as upd:
+        with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {regime}") as upd:
             scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver)
             res = simulate(scn, rf.path, upd)
         plot_run(res.trajectories, rf.path / "time_distance.png", f"{line.name} {tt.name} {regime}")
@@ -145,7 +109,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     view["run_min"] = (view["running_time_s"] / 60.0).round(1)
     view["delay_s"] = view["arrival_delay_s"].map(lambda x: "-" if x is None or x != x else f"{x:+.0f}")
     view["min_gap_m"] = view["min_gap_m"].map(lambda x: "-" if x is None or x != x else f"{x:.0f}")
-    _print_table(view, f"{line.name} / {tt.name} / {regime}",
+    print_table(view, f"{line.name} / {tt.name} / {regime}",
                  ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"])
     out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {s['min_gap_m'] or float('nan'):.1f} m, "
                       f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
@@ -179,7 +143,7 @@ def _parse_points(points: str | None) -> list[float] | None:
 def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: str | None, block_length_m: float | None, step_length: float, trains_per_run: int, out: Path | None) -> None:
     """Minimum headway by simulation vs blocking-time theory, per direction and measuring point."""
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.headway import run_headway_study
@@ -196,13 +160,13 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
     net = build_network(line, block_length_m)
     out = out or default_out("headway", line.name)
     with ResultsFolder(out, inputs={"line": line.path}, params={"regimes": regimes, "trains": names, "block_length_m": block_length_m, "step_length_s": step_length}) as rf:
-        with _progress() as prog:
+        with progress_bar() as prog:
             def factory(desc: str):
                 task = prog.add_task(desc, total=1.0)
                 return lambda d, t: prog.update(task, completed=d / t if t else 1.0)
 
             df = run_headway_study(line, net, stocks, regimes, rf.path, pts, step_s=step_length, n_trains=trains_per_run, progress_factory=factory)
-    _print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct", "speed_at_point_mps"])
+    print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct", "speed_at_point_mps"])
     out_console.print(f"wrote {out / 'headway.csv'}")
 
 
@@ -225,7 +189,7 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
                  step_length: float, vc_step_length: float, fixed_time_s: float, workers: int | None, seed: int, out: Path | None) -> None:
     """Line capacity under FBS, MB and VC (each controller, convoy sizes), per direction and stopping pattern."""
     from vcsumo.line import load_line
-    from vcsumo.network import build_network
+    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.capacity import PATTERNS, run_capacity_study
@@ -260,7 +224,7 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
     with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params={"train": name, "controllers": ctrls, "convoy_sizes": sizes, "directions": dirs,
                        "patterns": pats, "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length,
                        "fixed_time_s": fixed_time_s, "workers": n_workers}) as rf:
-        with _progress() as prog:
+        with progress_bar() as prog:
             task = prog.add_task(f"capacity {line.name}", total=1.0)
 
             def upd(k: int, n: int, desc: str) -> None:
@@ -268,7 +232,7 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
 
             df = run_capacity_study(line, net, stock, rf.path, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd,
                                     fixed_time_s=fixed_time_s, workers=n_workers)
-    _print_table(df, f"capacity — {line.name} ({name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
+    print_table(df, f"capacity — {line.name} ({name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
                  "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"])
     out_console.print(f"wrote {out / 'capacity.csv'}")
 
@@ -280,7 +244,7 @@ def study_run_cmd(study_file: Path, out: Path | None) -> None:
     """Run a study definition file (studies/*.yaml): capacity, headway, batch or junction."""
     import os
 
-    from vcsumo.study_files import load_study, study_arguments
+    from vcsumo.cli.study_files import load_study, study_arguments
 
     st = load_study(study_file)
     args = study_arguments(st, Path(study_file), out)
@@ -316,9 +280,9 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
         raise VcsumoError(f"--horizon: {horizon} steps is outside 2-400")
     out = out or default_out("reproduce", "felez2019")
     with ResultsFolder(out, params={"strategies": strats, "horizon": horizon}) as rf:
-        with _progress() as prog, _task(prog, "felez2019") as upd:
+        with progress_bar() as prog, progress_task(prog, "felez2019") as upd:
             table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
-    _print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
+    print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
                  ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions"])
     out_console.print(f"wrote {out / 'felez2019.csv'}")
 
@@ -334,15 +298,15 @@ def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
     scen = ("os1", "os2") if scenario == "both" else (scenario,)
     out = out or default_out("reproduce", "terlizzi2024")
     with ResultsFolder(out, params={"scenarios": scen}) as rf:
-        with _progress() as prog, _task(prog, "terlizzi2024") as upd:
+        with progress_bar() as prog, progress_task(prog, "terlizzi2024") as upd:
             summary = reproduce_terlizzi2024(rf.path, scen, progress=upd)
     cols = [c for c in ["run", "coupled_distance_m", "emergency_activations", "min_gap_m", "both_stopped_gap_m", "true_barrier_max", "robust_barrier_max"] if c in summary]
-    _print_table(summary, "Terlizzi et al. (2024) — reproduced", cols)
+    print_table(summary, "Terlizzi et al. (2024) — reproduced", cols)
     out_console.print(f"wrote {out}")
 
 
 def _register_batch() -> None:
-    from vcsumo.cli_batch import batch_cmd
+    from vcsumo.cli.batch import batch_cmd
 
     cli.add_command(batch_cmd)
 
@@ -351,7 +315,7 @@ _register_batch()
 
 
 def _register_junction() -> None:
-    from vcsumo.cli_junction import junction_cmd
+    from vcsumo.cli.junction import junction_cmd
 
     study.add_command(junction_cmd)
 
@@ -360,7 +324,7 @@ _register_junction()
 
 
 def _register_safety() -> None:
-    from vcsumo.cli_safety import safety_cmd
+    from vcsumo.cli.safety import safety_cmd
 
     study.add_command(safety_cmd)
 

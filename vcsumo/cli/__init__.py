@@ -1,0 +1,1 @@
+"""The ``vcsumo`` command line."""

@@ -1,0 +1,1 @@
+"""Plots that read only results tables."""
