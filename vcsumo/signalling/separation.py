@@ -1,0 +1,266 @@
+"""The one separation model: how close a train may run behind another, under the worst case.
+
+Every regime and every safety layer takes its braking from here — the FBS and MB movement
+authorities, the VC guard, the CBF's safety distance, the run-health monitor and the analytic
+headways — so FBS, MB and VC are compared under the same assumptions (a named
+:class:`~vcsumo.signalling.assumptions.AssumptionSet`).  The worst case (shared note
+*safe-separation*):
+
+* the train ahead brakes as hard as it physically can: its brake at the top of the box, plus its
+  whole running resistance, plus an up-grade where it brakes (:func:`strongest_decel`);
+* the train behind brakes as weakly as it is guaranteed to: its brake at the bottom of the box,
+  only the constant part of its resistance, minus a descent where it brakes, divided by its
+  rotating-mass factor (:func:`guaranteed_decel`), after an equivalent dead time (reaction + half
+  the brake build-up);
+* it knows the leader's state only as of the newest message it holds: the leader may have started
+  braking right after sending it (:func:`leader_worst_state`);
+* positions are uncertain by the odometry error of both trains, and a margin stays behind the rear.
+
+The rules (positions front of the follower to rear of the leader, m; decelerations > 0, m/s²):
+
+* **relative braking (VC)** — :func:`relative_braking_gap`: the largest closing of the gap while
+  the leader brakes at ``a_l`` from ``v_l`` and the follower, after ``T`` at ``v_f``, brakes at
+  ``a_f``.  It is the exact maximum over the braking episode, so it stays right when the follower
+  brakes harder than the leader can (``a_f > a_l``: the binding moment is then mid-braking, and a
+  difference of stopping distances would be negative); with equal speeds and ``a_f ≤ a_l`` it is
+  ``v·T + v²/2·(1/a_f − 1/a_l)``;
+* **absolute braking (MB, FBS)** — :func:`absolute_braking_gap`: ``v·T + v²/(2·a_f)`` behind a
+  point that does not move (the leader's confirmed rear, the end of authority);
+* the permitted speed towards a target (a braking curve): :func:`authority_speed`; the largest
+  follower speed a relative-braking rule admits: :func:`relative_braking_speed`.
+
+:class:`SeparationModel` binds an assumption set and the rolling stock and gives the gaps each
+regime requires (``vc_gap``, ``mb_gap``, ``absolute_gap``) and the decelerations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vcsumo.dynamics import running_resistance
+from vcsumo.rolling_stock import RollingStock
+from vcsumo.signalling.assumptions import AssumptionSet
+from vcsumo.units import G
+
+# -------------------------------------------------------------------------------------------
+# Pure kinematics of the worst case
+
+
+def _leader_position(t: float, v_l: float, a_l: float) -> float:
+    """Distance the leader covers in t braking at a_l from v_l (stopped afterwards), m."""
+    if math.isinf(a_l):
+        return 0.0
+    t_stop = v_l / a_l
+    if t >= t_stop:
+        return v_l * v_l / (2.0 * a_l)
+    return v_l * t - 0.5 * a_l * t * t
+
+
+def _follower_position(t: float, v_f: float, a_f: float, dead_s: float) -> float:
+    """Distance the follower covers in t: ``dead_s`` at v_f, then braking at a_f to a stop, m."""
+    if t <= dead_s:
+        return v_f * t
+    tb = t - dead_s
+    t_stop = v_f / a_f
+    if tb >= t_stop:
+        return v_f * dead_s + v_f * v_f / (2.0 * a_f)
+    return v_f * dead_s + v_f * tb - 0.5 * a_f * tb * tb
+
+
+def relative_braking_gap(v_f: float, v_l: float, a_f: float, a_l: float, dead_time_s: float) -> float:
+    """Largest closing of the front-to-rear gap over the braking episode, m (≥ 0).
+
+    The leader brakes at ``a_l`` from ``v_l`` from t = 0; the follower runs ``dead_time_s`` at
+    ``v_f`` and then brakes at ``a_f``; both stop and stay stopped.  The gap closes by
+    D(t) = x_f(t) − x_l(t), piecewise quadratic, so its maximum is at one of: the end of the dead
+    time, the moment the speeds become equal while both brake (a maximum only when a_f > a_l), the
+    leader's stop, the follower's stop.  ``a_l = inf`` is a leader that stops at once (absolute
+    braking).  A gap at least this large plus the margins keeps the trains apart in every case.
+    """
+    if v_f < 0 or v_l < 0 or a_f <= 0 or a_l <= 0 or dead_time_s < 0:
+        raise ValueError("speeds and dead time must be ≥ 0 and decelerations > 0")
+    candidates = [dead_time_s, dead_time_s + v_f / a_f]
+    if not math.isinf(a_l):
+        candidates.append(v_l / a_l)
+        if a_f > a_l:
+            t_eq = (v_f - v_l + a_f * dead_time_s) / (a_f - a_l)
+            if t_eq > dead_time_s:
+                candidates.append(t_eq)
+    worst = 0.0
+    for t in candidates:
+        worst = max(worst, _follower_position(t, v_f, a_f, dead_time_s) - _leader_position(t, v_l, a_l))
+    return worst
+
+
+def absolute_braking_gap(v_f: float, a_f: float, dead_time_s: float) -> float:
+    """Distance to stop behind a fixed point: v·T + v²/(2·a), m (numpy arrays accepted)."""
+    return v_f * dead_time_s + v_f * v_f / (2.0 * a_f)
+
+
+def authority_speed(distance_m: float, a_f: float, dead_time_s: float, target_speed_mps: float = 0.0) -> float:
+    """Permitted speed on a braking curve: the largest v with v·T + (v² − v_t²)/(2·a) ≤ distance, m/s.
+
+    ``distance_m`` runs to the target (end of authority, stopping point, start of a lower speed
+    limit); at or past it the permitted speed is the target speed.
+    """
+    if distance_m <= 0.0:
+        return target_speed_mps
+    k = a_f * dead_time_s
+    v = -k + math.sqrt(k * k + target_speed_mps * target_speed_mps + 2.0 * a_f * distance_m)
+    return max(v, target_speed_mps)
+
+
+def leader_worst_state(v_l: float, a_l: float, age_s: float) -> tuple[float, float]:
+    """(distance covered, speed) of a leader that started braking at ``a_l`` ``age_s`` ago, (m, m/s).
+
+    A message says where the leader was and how fast it ran at its time stamp; since then it may
+    have braked as hard as it can, which is the least it can have advanced.
+    """
+    if age_s <= 0.0:
+        return 0.0, v_l
+    return _leader_position(age_s, v_l, a_l), max(0.0, v_l - a_l * age_s)
+
+
+def relative_braking_speed(available_gap_m: float, v_l: float, a_f: float, a_l: float, dead_time_s: float, v_max_mps: float,
+                           tol_mps: float = 1e-3) -> float:
+    """Largest follower speed in [0, v_max] whose relative-braking closing fits ``available_gap_m``, m/s.
+
+    The closing grows with the follower's speed, so the answer is found by bisection; 0 when even a
+    standing follower does not fit (the gap is already below the margins).
+    """
+    if available_gap_m < 0.0:
+        return 0.0
+    if relative_braking_gap(v_max_mps, v_l, a_f, a_l, dead_time_s) <= available_gap_m:
+        return v_max_mps
+    # a start value from the absolute rule (the leader stopped): always admissible
+    lo = min(v_max_mps, authority_speed(available_gap_m, a_f, dead_time_s))
+    hi = v_max_mps
+    while hi - lo > tol_mps:
+        mid = 0.5 * (lo + hi)
+        if relative_braking_gap(mid, v_l, a_f, a_l, dead_time_s) <= available_gap_m:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+# -------------------------------------------------------------------------------------------
+# Braking of real trains in the worst case
+
+
+def brake_range(stock: RollingStock, assumptions: AssumptionSet, kind: str) -> tuple[float, float]:
+    """(guaranteed, strongest) brake deceleration of a train's brake ``kind``, m/s² (brake force per
+    mass, before resistance and grade): nominal ∓ the set's uncertainty, or the rolling stock's own
+    box where it is wider (service brake)."""
+    u = assumptions.braking_uncertainty
+    if kind == "emergency":
+        a = stock.emergency_brake_decel_mps2
+        return a * (1.0 - u), a * (1.0 + u)
+    if kind != "service":
+        raise ValueError(f"brake kind '{kind}' (service or emergency)")
+    a = stock.service_brake_decel_mps2
+    low, high = a * (1.0 - u), a * (1.0 + u)
+    if stock.uncertainty is not None:
+        box = stock.uncertainty.service_brake_decel_mps2
+        low, high = min(low, box.low), max(high, box.high)
+    return low, high
+
+
+def guaranteed_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str, v_mps: float, grade_low: float = 0.0):
+    """Deceleration the train is certain to reach, m/s² (numpy arrays of v and grade accepted).
+
+    Brake at the bottom of the box (limited by the brake power, if the train has a limit, at the
+    speed v: braking from v the limit only eases), Davis A at the bottom of its box as the only
+    resistance, the steepest descent where it brakes (``grade_low`` < 0, rise/run; an up-grade is not
+    counted), all over M·ρ.
+    """
+    low, _ = brake_range(stock, assumptions, kind)
+    m_high = stock.mass_kg if stock.uncertainty is None else stock.uncertainty.mass_kg.high
+    a_res = stock.davis_a_n if stock.uncertainty is None else stock.uncertainty.davis_a_n.low
+    brake = np.asarray(low, dtype=float)
+    if stock.max_brake_power_w is not None:
+        p_low = stock.max_brake_power_w if stock.uncertainty is None or stock.uncertainty.max_brake_power_w is None else stock.uncertainty.max_brake_power_w.low
+        brake = np.minimum(brake, p_low / (m_high * np.maximum(v_mps, 0.1)))
+    a = (brake + a_res / m_high + G * np.minimum(grade_low, 0.0)) / stock.rotating_mass_factor
+    if np.any(a <= 0.0):
+        raise ValueError(f"{stock.name}: no guaranteed braking on a {1000 * float(np.min(grade_low)):.1f} ‰ descent")
+    return float(a) if np.ndim(a) == 0 else a
+
+
+def strongest_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str, v_mps: float, grade_high: float = 0.0, tunnel_factor: float = 1.5):
+    """The hardest deceleration the train may show, m/s² (numpy arrays of v and grade accepted).
+
+    Brake at the top of the box (no power limit), its whole running resistance at v with the Davis
+    coefficients at the top of their box and the largest tunnel factor, the steepest up-grade where it
+    brakes (``grade_high`` > 0), over M alone (no rotating-mass factor).
+    """
+    _, high = brake_range(stock, assumptions, kind)
+    p = stock.params()
+    box = stock.uncertainty
+    if box is not None:
+        p = p.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
+    m_low = stock.mass_kg if box is None else box.mass_kg.low
+    a = high + running_resistance(p, np.asarray(v_mps, dtype=float), tunnel_factor) / m_low + G * np.maximum(grade_high, 0.0)
+    return float(a) if np.ndim(a) == 0 else a
+
+
+# -------------------------------------------------------------------------------------------
+# The rules of the regimes
+
+
+@dataclass(frozen=True)
+class SeparationModel:
+    """An assumption set bound to the rules: the gaps FBS, MB and VC require, m."""
+
+    assumptions: AssumptionSet
+
+    @property
+    def margin_m(self) -> float:
+        """Safety margin behind the leader's rear plus the position error of both trains, m."""
+        return self.assumptions.safety_margin_m + self.assumptions.position_uncertainty_m
+
+    @property
+    def dead_time_s(self) -> float:
+        return self.assumptions.dead_time_s
+
+    def follower_decel(self, stock: RollingStock, v_mps: float, grade_low: float = 0.0, kind: str | None = None):
+        """Guaranteed deceleration of a follower under the absolute rule (``kind`` None) or ``kind``."""
+        return guaranteed_decel(stock, self.assumptions, kind or self.assumptions.absolute_braking, v_mps, grade_low)
+
+    def vc_decels(self, follower: RollingStock, leader: RollingStock, v_f: float, v_l: float, grade_f: float = 0.0,
+                  grade_l: float = 0.0) -> tuple[float, float]:
+        """(follower's guaranteed, leader's strongest) deceleration of the relative-braking rule, m/s²."""
+        kind = self.assumptions.relative_braking
+        return (guaranteed_decel(follower, self.assumptions, kind, v_f, grade_f),
+                strongest_decel(leader, self.assumptions, kind, v_l, grade_l))
+
+    def vc_gap(self, follower: RollingStock, leader: RollingStock, v_mps: float, grade_f: float = 0.0, grade_l: float = 0.0,
+               message_age_s: float | None = None) -> float:
+        """Front-to-rear gap a VC follower needs behind its leader, both at speed v, m.
+
+        Relative braking with the follower's dead time extended by the age of the leader's newest
+        message (default: the set's bound ``t2t_delay_bound_s``), plus margin and position errors.
+        """
+        age = self.assumptions.t2t_delay_bound_s if message_age_s is None else message_age_s
+        a_f, a_l = self.vc_decels(follower, leader, v_mps, v_mps, grade_f, grade_l)
+        return self.margin_m + relative_braking_gap(v_mps, v_mps, a_f, a_l, self.dead_time_s + age)
+
+    def absolute_gap(self, follower: RollingStock, v_mps, grade_low=0.0, margin_m: float | None = None, kind: str | None = None):
+        """Gap a train needs to stop behind a fixed point (the leader's true rear), m — the safety
+        check of every absolute-braking train (numpy arrays of v and grade accepted)."""
+        a_f = self.follower_decel(follower, v_mps, grade_low, kind)
+        margin = (self.assumptions.safety_margin_m if margin_m is None else margin_m) + self.assumptions.position_uncertainty_m
+        return margin + absolute_braking_gap(np.asarray(v_mps, dtype=float) if np.ndim(v_mps) else v_mps, a_f, self.dead_time_s)
+
+    def mb_gap(self, follower: RollingStock, v_mps, grade_low=0.0):
+        """Gap a moving-block follower keeps at steady speed v behind a leader at v, m: the absolute
+        rule behind the rear as of the last position report, which may be a report period old."""
+        return self.absolute_gap(follower, v_mps, grade_low) + v_mps * self.assumptions.position_report_period_s
+
+    def fbs_braking_distance(self, follower: RollingStock, v_mps, grade_low=0.0):
+        """Distance a fixed-block train needs to stop at a signal (its end of authority), m."""
+        a_f = self.follower_decel(follower, v_mps, grade_low)
+        return absolute_braking_gap(v_mps, a_f, self.dead_time_s) + self.assumptions.position_error_m
