@@ -333,6 +333,7 @@ def trains_for(setup: Setup, first: str, offset_s: float, solo_times: dict[str, 
 
 
 def measuring_points(setup: Setup) -> list[MeasuringPoint]:
+    """The loop's measuring points: one per label and role (``M:branch``, ``END:main``, ...), at the role's route position."""
     out = []
     for lab, per in setup.points.items():
         for role, s in per.items():
