@@ -68,9 +68,9 @@ def mode26_red(tmp: Path) -> dict:
         trains.append(PlannedTrain(tid, tid, stock, edges, prof, dep, pos, v0, "up", end_pos_m=None, start_s_m=pos, stop_at_end=False))
     res = simulate(Scenario(line, net, trains, "fbs", driver=Constant("commanded", 44.4), end_time_s=600.0), tmp / "mode26")
     d = _red_stop_decels(tmp / "mode26")
-    from vcsumo.studies.junction import _log_counts
+    from vcsumo.sim.sumo_io import read_sumo_log
 
-    return {"case": "mode-26 red", "red_signal_stops": _log_counts(tmp / "mode26")["red_signal_stops"], "red_stop_decel_mps2": max(d) if d else float("nan"),
+    return {"case": "mode-26 red", "red_signal_stops": read_sumo_log(tmp / "mode26" / "sumo_errors.log").emergency_stops, "red_stop_decel_mps2": max(d) if d else float("nan"),
             "loop_emergency_brakes": res.summary["emergency_brakes"], "collisions": res.summary["collisions"]}
 
 
@@ -83,10 +83,10 @@ def study_case(tmp: Path, line_name: str, junction: str, direction: str, first: 
     line = load_line(line_name)
     net = build_network(line)
     setup = J.build_setup(line, net, load_rolling_stock("etr1000"), junction, direction)
-    solo = J._solo_runs(setup, "mb", 0.2, tmp / f"{label}_solo", 42)
+    solo = J.solo_runs(setup, "mb", 0.2, tmp / f"{label}_solo", 42)
     key = "M" if setup.merge is not None else "S"
     solo_times = {r: solo[r].passages[key][r] - solo[r].departures[r] for r in J.ROLES}
-    links = J._signal_links(net, [n for n in (setup.merge_node, setup.split_node) if n])
+    links = J.signal_links(setup)
     case = J.Case(junction, direction, first, "vc", "cbc", "sumo")
     rows = []
     for name, fl in (("workaround on", {}), ("workaround off", flags)):
@@ -100,7 +100,7 @@ def study_case(tmp: Path, line_name: str, junction: str, direction: str, first: 
                      "follower_lost_end_s": round(m["follower_lost_END_s"], 2), "order_kept": m["order_kept"],
                      "red_signal_stops": m["red_signal_stops"], "red_stop_decel_mps2": max(red) if red else float("nan"),
                      "loop_emergency_brakes": m["sumo_emergency_brakes"], "sumo_emergency_warnings": m["sumo_emergency_warnings"], "max_overspeed_mps": m["max_overspeed_mps"],
-                     "follower_speed_at_split_mps": round(J._speed_at_trace(rr, follower, setup.s_split[follower]), 2) if setup.split else float("nan"),
+                     "follower_speed_at_split_mps": round(J.speed_at_trace(rr, follower, setup.s_split[follower]), 2) if setup.split else float("nan"),
                      "wall_s": round(wall, 2)})
     return rows
 

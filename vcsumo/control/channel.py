@@ -136,6 +136,10 @@ class Channel:
             if prev is None or prev.sent_time_s <= item.msg.sent_time_s:
                 self._latest[item.link] = replace(item.msg, received_time_s=item.deliver_at)
                 self.delivered += 1
+        return self.latest(receiver)
+
+    def latest(self, receiver: str) -> dict[str, Message]:
+        """Latest message per sender delivered to ``receiver`` so far (what the last :meth:`deliver` returned); delivers nothing."""
         return {s: m for (s, r), m in self._latest.items() if r == receiver}
 
     @property

@@ -40,6 +40,7 @@ from vcsumo.errors import SumoError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
+from vcsumo.sim.sumo_io import write_sumocfg
 from vcsumo.timetable import PlannedTrain, routes_xml
 
 REGIMES = ("fbs", "mb", "vc")
@@ -120,6 +121,9 @@ class Scenario:
     """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
     trace_speeds: bool = False
     """Keep every train's (position, speed) at every step in the result (hindrance checks)."""
+    additional_files: list[Path] = field(default_factory=list)
+    """Further SUMO additional files, loaded after the network's stations file (e.g. signal
+    recordings and constraints written by :func:`vcsumo.sim.sumo_io.write_additional`)."""
 
     def __post_init__(self) -> None:
         if self.regime not in REGIMES:
@@ -177,10 +181,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         dwell = max(sum(s.dwell_s for s in t.stops) for t in scn.trains)
         end = max(t.depart_s for t in scn.trains) + 4.0 * longest / 10.0 + dwell + 3600.0
     args = sumo_args(
-        netdir / "line.net.xml", out / "routes.rou.xml", [netdir / "stations.add.xml"], out, scn.step_length_s, end,
+        netdir / "line.net.xml", out / "routes.rou.xml", [netdir / "stations.add.xml", *scn.additional_files], out, scn.step_length_s, end,
         moving_block=scn.regime in ("mb", "vc"), seed=scn.seed, fcd_period=scn.record_period_s, full_outputs=scn.full_outputs,
     ) + ["--begin", str(begin)]
-    _write_sumocfg(out / "scenario.sumocfg", args, out)
+    write_sumocfg(out / "scenario.sumocfg", args, out)
 
     plans = {t.id: t for t in scn.trains}
     state: dict[str, _Track] = {}
@@ -332,27 +336,6 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     result = _collect(scn, out, state, traj_rows, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
     result.speed_traces = traces
     return result
-
-
-def _write_sumocfg(path: Path, args: list[str], out: Path) -> None:
-    """A .sumocfg equivalent to the run, with paths relative to the results folder (for sumo-gui)."""
-    root = ET.Element("configuration")
-    it = iter(args)
-    for opt in it:
-        val = next(it)
-        key = opt.lstrip("-")
-        key = {"n": "net-file", "r": "route-files", "a": "additional-files"}.get(key, key)
-        parts = []
-        for v in val.split(","):
-            if key in ("net-file", "route-files", "additional-files") or key.endswith("-output") or key.endswith("-log"):
-                try:
-                    v = str(Path(v).resolve().relative_to(out.resolve()))
-                except ValueError:
-                    pass
-            parts.append(v)
-        ET.SubElement(root, key, value=",".join(parts))
-    ET.indent(root)
-    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (tunnel vType switching and vcsumo drivers are not replayed) -->\n' + ET.tostring(root, encoding="unicode") + "\n")
 
 
 def _parse_xml_rows(path: Path, tag: str) -> list[dict]:
