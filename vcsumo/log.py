@@ -7,15 +7,16 @@ and :func:`set_verbosity` for every ``-v``/``-q`` it sees.  Levels:
 * ``-q`` (verbosity −1): errors only, and no progress bars;
 * default (0): warnings (e.g. a line file's curve left out of the SUMO plant);
 * ``-v`` (1): what vcsumo does (network reused or built, results folder written);
-* ``-vv`` (2 or more): debugging detail, with the logger name of every message.
+* ``-vv`` (2 or more): debugging detail, each message with the name of its logger.
 
-Python warnings (:func:`warnings.warn`) are routed into the same handler.  SUMO's own messages do
+Python warnings (:func:`warnings.warn`) become log lines of ``vcsumo.warnings`` (same handler).  SUMO's own messages do
 not come here: they go into the results folder (``sumo_messages.log``, ``sumo_errors.log``).
 """
 
 from __future__ import annotations
 
 import logging
+import warnings
 
 ROOT_LOGGER = "vcsumo"
 _state = {"verbosity": 0}
@@ -45,23 +46,29 @@ def setup_logging(verbosity: int = 0, console=None) -> None:
     """
     from rich.logging import RichHandler
 
-    debug = verbosity >= 2
-    handler = RichHandler(console=console, show_time=debug, show_path=debug, markup=False, rich_tracebacks=False,
-                          log_time_format="%H:%M:%S")
+    handler = RichHandler(console=console, show_time=False, show_path=False, markup=False, rich_tracebacks=False)
     handler._vcsumo_handler = True  # type: ignore[attr-defined]
-    handler.setFormatter(logging.Formatter("%(name)s: %(message)s" if debug else "%(message)s"))
-    logging.captureWarnings(True)
-    for name in (ROOT_LOGGER, "py.warnings"):
-        lg = logging.getLogger(name)
-        for h in [h for h in lg.handlers if _is_ours(h)]:
-            lg.removeHandler(h)
-        lg.addHandler(handler)
+    lg = logging.getLogger(ROOT_LOGGER)
+    for h in [h for h in lg.handlers if _is_ours(h)]:
+        lg.removeHandler(h)
+    lg.addHandler(handler)
+    warnings.showwarning = show_warning
     set_verbosity(verbosity)
 
 
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Python warnings as one log line (``vcsumo.warnings``), without the source line Python adds."""
+    text = str(message)
+    if category is not UserWarning:
+        text = f"{category.__name__}: {text}"
+    logging.getLogger(f"{ROOT_LOGGER}.warnings").warning("%s", text)
+
+
 def set_verbosity(verbosity: int) -> None:
-    """Set the level of the ``vcsumo`` loggers (and of Python warnings) to that of ``verbosity``."""
+    """Set the level of the ``vcsumo`` loggers (warnings included) to that of ``verbosity``."""
     _state["verbosity"] = int(verbosity)
-    level = level_for(verbosity)
-    logging.getLogger(ROOT_LOGGER).setLevel(level)
-    logging.getLogger("py.warnings").setLevel(level)
+    lg = logging.getLogger(ROOT_LOGGER)
+    lg.setLevel(level_for(verbosity))
+    for h in lg.handlers:
+        if _is_ours(h):
+            h.setFormatter(logging.Formatter("%(name)s: %(message)s" if verbosity >= 2 else "%(message)s"))

@@ -59,6 +59,19 @@ def cli() -> None:
     """
 
 
+def network(line, block_length_m: float | None, force: bool = False):
+    """The line's SUMO network (built or reused from the cache), saying which with ``-v``."""
+    import time
+
+    from vcsumo.sim.network import build_network, cache_dir, fingerprint
+
+    cached = (cache_dir() / "networks" / line.name / fingerprint(line, block_length_m) / "line.net.xml").is_file() and not force
+    t0 = time.perf_counter()
+    net = build_network(line, block_length_m, force=force)
+    log.info("network of %s %s %s (%.1f s)", line.name, "reused from the cache:" if cached else "built:", net.folder, time.perf_counter() - t0)
+    return net
+
+
 # ----------------------------------------------------------------------------------------------
 @cli.command("lines")
 def lines_cmd() -> None:
@@ -91,11 +104,9 @@ def lines_cmd() -> None:
 def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool) -> None:
     """Build (or reuse) the SUMO network of a line."""
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
 
     line = load_line(line_spec)
-    net = build_network(line, block_length_m, force=force)
-    log.info("network cache: %s", net.folder)
+    net = network(line, block_length_m, force=force)
     topo = net.topology
     signals = sum(1 for n in topo.nodes.values() if n.signal)
     out_console.print(f"network of {line.name}: {len(topo.edges)} edges, {signals} signals, {len(topo.platforms)} platforms")
@@ -120,7 +131,6 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
         step_length = 0.1 if regime == "vc" else 0.5
     from vcsumo.infrastructure import write_infrastructure
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
     from vcsumo.plots.charts import plot_run
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.sim.loop import Scenario, simulate
@@ -130,7 +140,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
         raise VcsumoError(f"--step-length: {step_length} s is outside (0, 2] s")
     line = load_line(line_spec)
     tt, tt_path = load_timetable(timetable, line)
-    net = build_network(line, block_length_m)
+    net = network(line, block_length_m)
     trains = plan_trains(tt, tt_path, line, net.topology, dt=step_length)
     driver = None
     if regime == "vc":
@@ -145,6 +155,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {regime}") as upd:
             scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver)
             res = simulate(scn, rf.path, upd)
+        log.info("SUMO's messages: %s, %s", out / "sumo_messages.log", out / "sumo_errors.log")
         infra = write_infrastructure(net.topology, rf.path)
         plot_run(res.trajectories, rf.path / "time_distance.png", f"{line.name} {tt.name} {regime}", infrastructure=infra)
         if driver is not None:
@@ -157,9 +168,8 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     view = res.trains.copy()
     view["departure"] = view["departure_s"].map(lambda x: format_clock(x) if x == x else "-")
     view["arrival"] = view["arrival_s"].map(lambda x: format_clock(x) if x == x else "-")
-    view["run_min"] = (view["running_time_s"] / 60.0).round(1)
-    view["delay_s"] = view["arrival_delay_s"].map(lambda x: "-" if x is None or x != x else f"{x:+.0f}")
-    view["min_gap_m"] = view["min_gap_m"].map(lambda x: "-" if x is None or x != x else f"{x:.0f}")
+    view["run_min"] = view["running_time_s"] / 60.0
+    view["delay_s"] = view["arrival_delay_s"]
     print_table(view, f"{line.name} / {tt.name} / {regime}",
                 ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"], csv_path=out / "summary.csv")
     out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {s['min_gap_m'] or float('nan'):.1f} m, "
@@ -199,7 +209,6 @@ def _parse_points(points: str | None) -> list[float] | None:
 def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: str | None, block_length_m: float | None, step_length: float, trains_per_run: int, out: Path | None) -> None:
     """Minimum headway by simulation vs blocking-time theory, per direction and measuring point."""
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.headway import run_headway_study
@@ -213,7 +222,7 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
         raise VcsumoError("--trains-per-run: at least 2 trains are needed")
     regimes = ["fbs", "mb"] if regime == "both" else [regime]
     pts = _parse_points(points)
-    net = build_network(line, block_length_m)
+    net = network(line, block_length_m)
     out = out or default_out("headway", line.name)
     with ResultsFolder(out, inputs={"line": line.path}, params={"regimes": regimes, "trains": names, "block_length_m": block_length_m, "step_length_s": step_length}) as rf:
         with progress_bar() as prog:
@@ -246,7 +255,6 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
                  step_length: float, vc_step_length: float, fixed_time_s: float, workers: int | None, seed: int, out: Path | None) -> None:
     """Line capacity under FBS, MB and VC (each controller, convoy sizes), per direction and stopping pattern."""
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.capacity import PATTERNS, run_capacity_study
@@ -276,7 +284,7 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
     n_workers = workers if workers is not None else (os.cpu_count() or 1)
     if n_workers < 1:
         raise VcsumoError(f"--workers: {workers} (at least 1)")
-    net = build_network(line, block_length_m)
+    net = network(line, block_length_m)
     out = out or default_out("capacity", line.name)
     with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params={"train": name, "controllers": ctrls, "convoy_sizes": sizes, "directions": dirs,
                        "patterns": pats, "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length,

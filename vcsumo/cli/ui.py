@@ -29,7 +29,8 @@ PIPE_WIDTH = 100
 """Width of tables written to a pipe or a file (``$COLUMNS`` if set)."""
 
 console = Console(stderr=True)
-out_console = Console(width=None if sys.stdout.isatty() or os.environ.get("COLUMNS") else PIPE_WIDTH)
+out_console = Console(width=None if sys.stdout.isatty() or os.environ.get("COLUMNS") else PIPE_WIDTH, soft_wrap=True)
+"""Results on stdout; lines of text are not wrapped (a path stays on one line), tables fit the width."""
 
 
 def progress_bar() -> Progress:
@@ -207,4 +208,4 @@ def print_table(df: pd.DataFrame, title: str, columns: list[str] | None = None, 
     table, notes = build_table(df, title, columns, width=con.width, csv_path=csv_path, drop_first=drop_first)
     con.print(table)
     for n in notes:
-        con.print(n, markup=False, highlight=False, soft_wrap=False)
+        con.print(n, markup=False, highlight=False, soft_wrap=False)  # prose: wrapped to the width

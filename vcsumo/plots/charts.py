@@ -10,7 +10,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from matplotlib.lines import Line2D  # noqa: E402
+
 from vcsumo.plots.common import distance_axis, read_table, set_clock_axis, train_styles  # noqa: E402
+
+LEGEND_MAX = 60
+"""At most this many legend entries in the run plot (the first trains, then "… and k more")."""
 
 
 def plot_headway(df: pd.DataFrame, path: Path) -> None:
@@ -40,9 +45,9 @@ def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastruct
     """Graphical timetable (time–distance, clock time) and speed–distance of every train of a run.
 
     Reads ``trajectories.csv`` and, for station names and signals on the distance axis,
-    ``infrastructure.csv`` (:mod:`vcsumo.infrastructure`).  Only the main line is drawn.  Up to 20
-    trains get a colour and a legend entry each; more get a style per service (tab20 × line
-    styles) and a legend entry per service.  Returns the figure (closed).
+    ``infrastructure.csv`` (:mod:`vcsumo.infrastructure`).  Only the main line is drawn.  Styles
+    stay distinct for many trains (:func:`vcsumo.plots.common.train_styles`); the legend sits
+    outside the axes, at most :data:`LEGEND_MAX` entries.  Returns the figure (closed).
     """
     traj = read_table(traj)
     infra = read_table(infrastructure)
@@ -88,10 +93,17 @@ def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastruct
     a2.grid(alpha=0.3)
     distance_axis(a2, infra, axis="x", signals=False)
     handles, names = a1.get_legend_handles_labels()
+    if len(handles) > LEGEND_MAX:  # the first trains, the signals, and how many more
+        keep = [k for k, n in enumerate(names) if n.startswith("signal")]
+        first = [k for k in range(len(handles)) if k not in keep][: LEGEND_MAX - len(keep) - 1]
+        more = len(handles) - len(first) - len(keep)
+        handles = [handles[k] for k in first] + [Line2D([], [], ls="none")] + [handles[k] for k in keep]
+        names = [names[k] for k in first] + [f"… and {more} more trains"] + [names[k] for k in keep]
     if handles:
-        ncol = max(1, -(-len(handles) // 45))
-        fig.legend(handles, names, loc="outside right upper", fontsize=7 if len(handles) <= 45 else 6, ncol=ncol,
-                   title="trains" if len(trains) <= 20 else "services", title_fontsize=8, frameon=False)
+        ncol = max(1, -(-len(handles) // 40))
+        grouped = len(trains) > 20 and any("trains)" in n for n in names)
+        fig.legend(handles, names, loc="outside right upper", fontsize=7 if len(handles) <= 40 else 6, ncol=ncol,
+                   title="services" if grouped else "trains", title_fontsize=8, frameon=False)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return fig

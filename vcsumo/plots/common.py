@@ -52,34 +52,29 @@ def service_of(train: str) -> str:
 
 
 def train_styles(trains: list[str]) -> tuple[dict[str, dict], dict[str, str]]:
-    """Line style of every train and the legend groups.
+    """Line style of every train and its legend label.
 
-    Up to 20 trains: one colour per train (tab10, tab20), one legend entry each.  More: one style
-    per service (``FR9701.1``, ``FR9701.2``, ... share it): 20 colours × 4 line styles, a legend
-    entry per service.  Returns ({train: plot kwargs}, {train: legend label}); a train's label is
-    only given to the first train of its group.
+    Up to 20 trains: a colour each (tab10, tab20).  More, in 2–20 services (``FR9701.1``,
+    ``FR9701.2``, ... are one service): a colour per service and one legend entry per service.
+    Otherwise a style per train from 20 colours × 4 line styles (80 distinct).  Returns
+    ({train: {"color", "ls"}}, {train: legend label}); in a service only its first train has a label.
     """
     trains = list(dict.fromkeys(trains))
     if len(trains) <= 20:
         colours = list(plt.get_cmap("tab10").colors) if len(trains) <= 10 else TABLEAU20
-        styles = {t: {"color": colours[i], "ls": "-"} for i, t in enumerate(trains)}
-        return styles, {t: t for t in trains}
+        return {t: {"color": colours[i], "ls": "-"} for i, t in enumerate(trains)}, {t: t for t in trains}
     services = list(dict.fromkeys(service_of(t) for t in trains))
-    if len(services) > 20 * len(LINE_STYLES):  # every train its own service: cycle the styles by train
-        key = {t: t for t in trains}
-        groups = trains
-    else:
-        key = {t: service_of(t) for t in trains}
-        groups = services
-    look = {g: {"color": TABLEAU20[(2 * i) % 20 + (i // 10) % 2], "ls": LINE_STYLES[(i // 20) % len(LINE_STYLES)]} for i, g in enumerate(groups)}
-    count = {g: sum(1 for t in trains if key[t] == g) for g in groups}
-    styles = {t: dict(look[key[t]]) for t in trains}
-    labels: dict[str, str] = {}
-    for t in trains:
-        g = key[t]
-        if g not in {key[u] for u in labels}:
-            labels[t] = g if count[g] == 1 else f"{g} ({count[g]} trains)"
-    return styles, labels
+    if 2 <= len(services) <= 20:
+        look = {g: {"color": TABLEAU20[(2 * i) % 20 + (i // 10) % 2], "ls": "-"} for i, g in enumerate(services)}
+        count = {g: sum(1 for t in trains if service_of(t) == g) for g in services}
+        labels: dict[str, str] = {}
+        for t in trains:
+            g = service_of(t)
+            if g not in {service_of(u) for u in labels}:
+                labels[t] = g if count[g] == 1 else f"{g} ({count[g]} trains)"
+        return {t: dict(look[service_of(t)]) for t in trains}, labels
+    styles = {t: {"color": TABLEAU20[(2 * i) % 20 + (i // 10) % 2], "ls": LINE_STYLES[(i // 20) % len(LINE_STYLES)]} for i, t in enumerate(trains)}
+    return styles, {t: t for t in trains}
 
 
 def station_ticks(infra: pd.DataFrame | None, section: str = "main", km_range: tuple[float, float] | None = None,
