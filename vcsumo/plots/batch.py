@@ -12,7 +12,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 DELAY_LINES_S = (180.0, 300.0)
 """Reference lines of the delay plot: the batch's punctuality thresholds, 3 and 5 min
@@ -102,7 +101,8 @@ def plot_punctuality(runs_csv: Path, path: Path):
         ax.set_xticks(x, labels, fontsize=7)
         fig.legend(loc="outside upper center", ncol=2, fontsize=8, frameon=False)
     ax.set_ylim(lo, hi)
-    ax.yaxis.set_major_locator(MaxNLocator(nbins=8, integer=True))
+    step = next(st for st in (1, 2, 5, 10, 20, 25) if (100.0 - lo) / st <= 8)
+    ax.set_yticks(np.arange(lo, 100.0 + 1e-9, step))  # no tick above 100 %
     ax.set_ylabel("punctual trains [%]" + (f"  (axis from {lo:.0f} %)" if lo > 0 else ""))
     ax.set_title("punctuality: mean over seeds, whiskers lowest–highest seed", fontsize=9)
     ax.grid(alpha=0.3, axis="y")
