@@ -167,7 +167,16 @@ def test_punctuality_axis_is_zoomed_and_the_legend_is_outside(results, tmp_path)
     assert fig.legends and not ax.get_legend()
     fig.canvas.draw()
     assert fig.legends[0].get_window_extent().y0 >= ax.get_window_extent().y1 - 1
-    assert f"{shares[:, 0].mean():.1f}" in texts(fig) or len(runs.groupby(["timetable", "regime"])) > 1
+    mb = runs[runs.regime == "mb"]
+    assert f"{100 * mb.punctuality_3min_share.mean():.1f}" in texts(fig) and f"{100 * mb.punctuality_5min_share.mean():.1f}" in texts(fig)
+    assert "failed" not in texts(fig)
+    # a group whose runs all failed keeps its place, marked
+    failed = runs[runs.regime == "mb"].copy()
+    failed["regime"], failed["controller"], failed["status"], failed["error"] = "vc", "cbc", "failed", "SumoError: boom"
+    failed[["punctuality_3min_share", "punctuality_5min_share"]] = np.nan
+    pd.concat([runs, failed]).to_csv(tmp_path / "runs.csv", index=False)
+    fig = plot_punctuality(tmp_path / "runs.csv", tmp_path / "p2.png")
+    assert "failed" in texts(fig) and any("vc\ncbc\n(0 of 2 runs)" in t for t in tick_labels(fig.axes[0].xaxis))
 
 
 def test_zoomed_percent_range():

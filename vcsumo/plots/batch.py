@@ -44,6 +44,10 @@ def plot_delays(trains_csv: Path, runs_csv: Path, path: Path):
         if data:
             ax.boxplot(data, showfliers=True, widths=0.6)
             ax.set_xticks(range(1, len(labels) + 1), labels)
+            for k, vals in enumerate(data, start=1):  # a group without any arrival: every run failed (or no train arrived)
+                if not np.isfinite(np.asarray(vals, dtype=float)).any():
+                    ax.text(k, 0.5, "no arrivals\n(runs failed)", transform=ax.get_xaxis_transform(), ha="center", va="center", fontsize=8,
+                            color="0.35", bbox=dict(facecolor="#f0f0f0", edgecolor="0.7", boxstyle="round,pad=0.3"))
         for thr, ls in zip(DELAY_LINES_S, ("--", ":")):
             ax.axhline(thr / 60.0, color="grey", ls=ls, lw=0.8)
         ax.set_title(tt)
@@ -72,21 +76,24 @@ def zoomed_percent_range(values: np.ndarray, step: float = 5.0) -> tuple[float, 
 def plot_punctuality(runs_csv: Path, path: Path):
     """Mean 3-min / 5-min punctuality per timetable and regime over the seeds (bars with their values;
     whiskers: lowest and highest seed), from batch_runs.csv.  The axis is zoomed onto the values
-    (it starts at a multiple of 5 %, noted on the axis); the legend sits above the bars.
-    Returns the figure (closed)."""
-    runs = pd.read_csv(runs_csv, dtype={"controller": str}, keep_default_na=False)
-    runs = runs[runs["status"] == "ok"].copy()
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * max(runs.groupby(["timetable", "regime", "controller"]).ngroups, 1) + 2.0), 4.4),
-                           layout="constrained")
+    (it starts at a multiple of 5 %, noted on the axis); the legend sits above the bars; a group
+    whose runs all failed keeps its place, marked "failed".  Returns the figure (closed)."""
+    keys = ["timetable", "regime", "controller"]
+    every = pd.read_csv(runs_csv, dtype={"controller": str}, keep_default_na=False)
+    groups = list(dict.fromkeys(zip(*(every[k] for k in keys)))) if len(every) else []
+    runs = every[every["status"] == "ok"].copy()
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * max(len(groups), 1) + 2.0), 4.4), layout="constrained")
     lo, hi = 0.0, 105.0
-    if len(runs):
+    if groups:
         cols = ["punctuality_3min_share", "punctuality_5min_share"]
         for c in cols:
             runs[c] = 100.0 * pd.to_numeric(runs[c], errors="coerce")
-        grouped = runs.groupby(["timetable", "regime", "controller"], sort=False)[cols]
-        mean, low, high, count = grouped.mean(), grouped.min(), grouped.max(), grouped.count()
+        index = pd.MultiIndex.from_tuples(groups, names=keys)
+        grouped = runs.groupby(keys, sort=False)[cols]
+        mean, low, high = (x.reindex(index) for x in (grouped.mean(), grouped.min(), grouped.max()))
+        count = grouped.count().reindex(index).fillna(0)
         lo, hi = zoomed_percent_range(np.concatenate([low[cols].to_numpy().ravel(), mean[cols].to_numpy().ravel()]))
-        x = np.arange(len(mean))
+        x = np.arange(len(groups))
         for k, (c, name, colour) in enumerate(zip(cols, ("≤ 3 min", "≤ 5 min"), ("#4477aa", "#ee7733"))):
             xs = x + (k - 0.5) * 0.38
             m = mean[c].to_numpy()
@@ -96,15 +103,21 @@ def plot_punctuality(runs_csv: Path, path: Path):
             for xi, mi, top in zip(xs, m, high[c].to_numpy()):
                 if np.isfinite(mi):
                     ax.text(xi, top + 0.01 * (hi - lo), f"{mi:.1f}", ha="center", va="bottom", fontsize=7, color="0.15")
-        labels = [f"{t}\n{regime_label(r, c)}\n({int(n)} seed{'s' if n != 1 else ''})"
-                  for (t, r, c), n in zip(mean.index, count[cols[0]].to_numpy())]
+        for xi, n in zip(x, count[cols[0]].to_numpy()):
+            if n == 0:  # every run of the group failed
+                ax.bar(xi, 0.2 * (hi - lo), 0.76, bottom=lo, color="none", edgecolor="#bbbbbb", hatch="///", lw=0.8)
+                ax.text(xi, lo + 0.1 * (hi - lo), "failed", ha="center", va="center", fontsize=8, color="0.3",
+                        bbox=dict(facecolor="white", edgecolor="none", pad=0.5))
+        runs_per = every.groupby(keys, sort=False).size().reindex(index).to_numpy()
+        labels = [f"{t}\n{regime_label(r, c)}\n({int(n)} of {int(a)} run{'s' if a != 1 else ''})"
+                  for (t, r, c), n, a in zip(groups, count[cols[0]].to_numpy(), runs_per)]
         ax.set_xticks(x, labels, fontsize=7)
         fig.legend(loc="outside upper center", ncol=2, fontsize=8, frameon=False)
     ax.set_ylim(lo, hi)
     step = next(st for st in (1, 2, 5, 10, 20, 25) if (100.0 - lo) / st <= 8)
     ax.set_yticks(np.arange(lo, 100.0 + 1e-9, step))  # no tick above 100 %
     ax.set_ylabel("punctual trains [%]" + (f"  (axis from {lo:.0f} %)" if lo > 0 else ""))
-    ax.set_title("punctuality: mean over seeds, whiskers lowest–highest seed", fontsize=9)
+    ax.set_title("punctuality: mean over the runs that finished, whiskers lowest–highest seed", fontsize=9)
     ax.grid(alpha=0.3, axis="y")
     fig.savefig(path, dpi=110)
     plt.close(fig)
