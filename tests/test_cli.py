@@ -261,12 +261,27 @@ def test_piped_tables_are_100_columns_wide():
     assert proc.stdout.strip() == "100"
 
 
-def test_sumo_warnings_go_to_the_log_not_the_terminal(in_tmp, capfd):
-    """With --workers 1 the cases run in this process: SUMO's warnings (here: emergency braking of
-    CBF-CBC followers) land in the probes' sumo_errors.log, not on the terminal."""
+def test_sumo_warnings_go_to_the_log_not_the_terminal(in_tmp, capfd, network_factory):
+    """SUMO in this process (a run, or a study with --workers 1) writes its warnings into the run's
+    sumo_errors.log only: here a train type whose emergency deceleration is below its service one."""
+    from vcsumo.sim.sumo_backend import SumoBackend
+
+    net = network_factory("felez_test")
+    routes = write(in_tmp / "w.rou.xml", '<routes>\n<vType id="t" vClass="rail" decel="5" emergencyDecel="2" length="50"/>\n'
+                   '<vehicle id="v" type="t" depart="0"><route edges="main_up_0 main_up_1"/></vehicle>\n</routes>\n')
+    log = in_tmp / "sumo_errors.log"
+    with SumoBackend(["-n", str(net.net_file), "-r", str(routes), "--end", "10", "--no-step-log", "true"], error_log=log) as sim:
+        for _ in range(5):
+            sim.step()
+    assert "Warning" not in capfd.readouterr().err
+    assert "Warning: Value of 'emergencyDecel' (2.00) should be higher than 'decel'" in log.read_text()
+
+
+def test_a_study_in_this_process_keeps_sumo_off_the_terminal(in_tmp, capfd):
+    """--workers 1: the capacity cases (here CBF-CBC convoys, whose followers SUMO reports braking
+    hard) run in this process; the terminal gets the progress bar and the table only."""
     assert main(["study", "capacity", "--line", "felez_test", "--controllers", "cbf-cbc", "--convoy-sizes", "2", "--directions", "up",
                  "--patterns", "non-stop", "--workers", "1", "--out", "c"]) == 0
-    err = capfd.readouterr().err
-    assert "Warning" not in err
-    logs = [p.read_text() for p in Path("c").rglob("sumo_errors.log")]
-    assert any("Warning: Vehicle" in t for t in logs)
+    cap = capfd.readouterr()
+    assert "Warning" not in cap.err and "Warning" not in cap.out and "Loading net-file" not in cap.out + cap.err
+    assert "wrote c/capacity.csv" in cap.out

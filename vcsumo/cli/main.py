@@ -172,7 +172,9 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     view["delay_s"] = view["arrival_delay_s"]
     print_table(view, f"{line.name} / {tt.name} / {regime}",
                 ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"], csv_path=out / "summary.csv")
-    out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {s['min_gap_m'] or float('nan'):.1f} m, "
+    gap = s.get("min_gap_m")
+    gap_text = f"{gap:.1f} m" if isinstance(gap, (int, float)) and gap == gap else "– (no train ran behind another)"
+    out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {gap_text}, "
                       f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
     out_console.print(f"wrote {out}")
 
