@@ -50,7 +50,7 @@ def _floats(value: str, option: str) -> tuple[float, ...]:
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step for FBS/MB, s")
 @click.option("--vc-step-length", type=float, default=0.2, show_default=True, help="SUMO and controller step for VC, s")
-@click.option("--seed", type=int, default=42, show_default=True)
+@click.option("--seed", type=int, default=42, show_default=True, help="Random seed of SUMO and of the VC channels (message delays and losses); the same seed gives the same results")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def junction_cmd(line_spec: str, junctions: str | None, train: str | None, controllers: str, first: str, variants: str, directions: str, offsets: str,
                  tolerance_s: float, resolution_s: float, window_m: float, approach_m: float, block_length_m: float | None, step_length: float,

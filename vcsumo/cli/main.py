@@ -6,6 +6,7 @@ status 2; results folders are written completely or not at all (:mod:`vcsumo.res
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
@@ -13,21 +14,81 @@ import click
 
 from vcsumo.cli.ui import console, out_console, print_table, progress_bar, progress_task
 from vcsumo.errors import VcsumoError
+from vcsumo.log import set_verbosity, setup_logging, verbosity
+
+log = logging.getLogger(__name__)
+
+SEED_HELP = "Random seed of SUMO and of the VC channels (message delays and losses); the same seed gives the same results"
+
+
+def _louder(ctx: click.Context, _param: click.Parameter, value: int) -> None:
+    if value:
+        set_verbosity(max(verbosity(), 0) + value)
+
+
+def _quieter(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    if value:
+        set_verbosity(-1)
+
+
+def _add_verbosity_options(cmd: click.Command) -> None:
+    """``-v``/``-q`` on the group and on every command under it: ``vcsumo -v run ...`` and
+    ``vcsumo run ... -v`` both work (a command's own flags add to the group's)."""
+    if not any(p.name == "verbose" for p in cmd.params):
+        cmd.params.append(click.Option(["-v", "--verbose"], count=True, expose_value=False, callback=_louder,
+                                       help="More diagnostics on stderr (-vv: debugging detail)"))
+        cmd.params.append(click.Option(["-q", "--quiet"], is_flag=True, expose_value=False, callback=_quieter,
+                                       help="Only errors and results: no warnings, no progress bars"))
+    for sub in getattr(cmd, "commands", {}).values():
+        _add_verbosity_options(sub)
+
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="vcsumo")
 def cli() -> None:
-    """vcsumo: fixed block, moving block and virtual coupling on real lines, in SUMO."""
+    """vcsumo: fixed block, moving block and virtual coupling on real lines, in SUMO.
+
+    Results (tables, where files were written) go to stdout; progress bars, warnings and
+    diagnostics (-v, -vv) to stderr. Shipped lines, timetables and trains come with the package;
+    set VCSUMO_HOME to a folder of the same shape (networks/, routes/, controllers/, studies/) to
+    use your own, VCSUMO_CACHE to move the network cache (default: the user cache folder).
+
+    \b
+    Example:
+      vcsumo study capacity --line firenze_bologna
+    """
+
+
+def network(line, block_length_m: float | None, force: bool = False):
+    """The line's SUMO network (built or reused from the cache), saying which with ``-v``."""
+    import time
+
+    from vcsumo.sim.network import build_network, cache_dir, fingerprint
+
+    cached = (cache_dir() / "networks" / line.name / fingerprint(line, block_length_m) / "line.net.xml").is_file() and not force
+    t0 = time.perf_counter()
+    net = build_network(line, block_length_m, force=force)
+    log.info("network of %s %s %s (%.1f s)", line.name, "reused from the cache:" if cached else "built:", net.folder, time.perf_counter() - t0)
+    return net
 
 
 # ----------------------------------------------------------------------------------------------
 @cli.command("lines")
 def lines_cmd() -> None:
-    """List the shipped lines and train types."""
-    from vcsumo.line import load_line, shipped_lines
-    from vcsumo.rolling_stock import load_rolling_stock, shipped_rolling_stock
+    """List the shipped lines and train types (or those under $VCSUMO_HOME)."""
+    from vcsumo.line import load_line, project_root, shipped_lines
+    from vcsumo.rolling_stock import load_rolling_stock, rolling_stock_dir, shipped_rolling_stock
 
-    for name in shipped_lines():
+    names = shipped_lines()
+    if not names:
+        import os
+
+        how = "$VCSUMO_HOME is set to " + os.environ["VCSUMO_HOME"] if os.environ.get("VCSUMO_HOME") else "the package was installed without its data"
+        raise VcsumoError(f"{project_root() / 'networks'}: no line files (<line>/line.yaml) found ({how})")
+    if not shipped_rolling_stock():
+        raise VcsumoError(f"{rolling_stock_dir()}: no train type files (<name>.yaml) found")
+    log.info("lines and train types from %s", project_root())
+    for name in names:
         ln = load_line(name)
         out_console.print(f"[bold]{name}[/]: {ln.data.title} ({ln.data.km_start}–{ln.data.km_end} km, {ln.data.tracks} track, "
                           f"{len(ln.data.stations)} stations, {len(ln.data.branches)} branches)")
@@ -43,10 +104,9 @@ def lines_cmd() -> None:
 def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool) -> None:
     """Build (or reuse) the SUMO network of a line."""
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
 
     line = load_line(line_spec)
-    net = build_network(line, block_length_m, force=force)
+    net = network(line, block_length_m, force=force)
     topo = net.topology
     signals = sum(1 for n in topo.nodes.values() if n.signal)
     out_console.print(f"network of {line.name}: {len(topo.edges)} edges, {signals} signals, {len(topo.platforms)} platforms")
@@ -64,13 +124,13 @@ def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool)
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 @click.option("--step-length", type=float, default=None, help="SUMO step, s (default 0.5; 0.1 for vc)")
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
-@click.option("--seed", type=int, default=42, show_default=True)
+@click.option("--seed", type=int, default=42, show_default=True, help=SEED_HELP)
 def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, channel: str | None, out: Path | None, step_length: float | None, block_length_m: float | None, seed: int) -> None:
     """Run a timetable on a line under one regime; write trajectories, stop events and a summary."""
     if step_length is None:
         step_length = 0.1 if regime == "vc" else 0.5
+    from vcsumo.infrastructure import write_infrastructure
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
     from vcsumo.plots.charts import plot_run
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.sim.loop import Scenario, simulate
@@ -80,7 +140,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
         raise VcsumoError(f"--step-length: {step_length} s is outside (0, 2] s")
     line = load_line(line_spec)
     tt, tt_path = load_timetable(timetable, line)
-    net = build_network(line, block_length_m)
+    net = network(line, block_length_m)
     trains = plan_trains(tt, tt_path, line, net.topology, dt=step_length)
     driver = None
     if regime == "vc":
@@ -95,7 +155,9 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {regime}") as upd:
             scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver)
             res = simulate(scn, rf.path, upd)
-        plot_run(res.trajectories, rf.path / "time_distance.png", f"{line.name} {tt.name} {regime}")
+        log.info("SUMO's messages: %s, %s", out / "sumo_messages.log", out / "sumo_errors.log")
+        infra = write_infrastructure(net.topology, rf.path)
+        plot_run(res.trajectories, rf.path / "time_distance.png", f"{line.name} {tt.name} {regime}", infrastructure=infra)
         if driver is not None:
             driver.write_report(rf.path)
             res.summary.update(driver.summary())
@@ -106,12 +168,13 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     view = res.trains.copy()
     view["departure"] = view["departure_s"].map(lambda x: format_clock(x) if x == x else "-")
     view["arrival"] = view["arrival_s"].map(lambda x: format_clock(x) if x == x else "-")
-    view["run_min"] = (view["running_time_s"] / 60.0).round(1)
-    view["delay_s"] = view["arrival_delay_s"].map(lambda x: "-" if x is None or x != x else f"{x:+.0f}")
-    view["min_gap_m"] = view["min_gap_m"].map(lambda x: "-" if x is None or x != x else f"{x:.0f}")
+    view["run_min"] = view["running_time_s"] / 60.0
+    view["delay_s"] = view["arrival_delay_s"]
     print_table(view, f"{line.name} / {tt.name} / {regime}",
-                 ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"])
-    out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {s['min_gap_m'] or float('nan'):.1f} m, "
+                ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"], csv_path=out / "summary.csv")
+    gap = s.get("min_gap_m")
+    gap_text = f"{gap:.1f} m" if isinstance(gap, (int, float)) and gap == gap else "– (no train ran behind another)"
+    out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {gap_text}, "
                       f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
     out_console.print(f"wrote {out}")
 
@@ -119,7 +182,12 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
 # ----------------------------------------------------------------------------------------------
 @cli.group("study")
 def study() -> None:
-    """Studies: headway, capacity, junction."""
+    """Studies: capacity, headway, junction, safety, and run (a study file).
+
+    \b
+    Example:
+      vcsumo study capacity --line felez_test --controllers cbc --convoy-sizes 2
+    """
 
 
 def _parse_points(points: str | None) -> list[float] | None:
@@ -143,7 +211,6 @@ def _parse_points(points: str | None) -> list[float] | None:
 def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: str | None, block_length_m: float | None, step_length: float, trains_per_run: int, out: Path | None) -> None:
     """Minimum headway by simulation vs blocking-time theory, per direction and measuring point."""
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.headway import run_headway_study
@@ -157,7 +224,7 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
         raise VcsumoError("--trains-per-run: at least 2 trains are needed")
     regimes = ["fbs", "mb"] if regime == "both" else [regime]
     pts = _parse_points(points)
-    net = build_network(line, block_length_m)
+    net = network(line, block_length_m)
     out = out or default_out("headway", line.name)
     with ResultsFolder(out, inputs={"line": line.path}, params={"regimes": regimes, "trains": names, "block_length_m": block_length_m, "step_length_s": step_length}) as rf:
         with progress_bar() as prog:
@@ -166,7 +233,8 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
                 return lambda d, t: prog.update(task, completed=d / t if t else 1.0)
 
             df = run_headway_study(line, net, stocks, regimes, rf.path, pts, step_s=step_length, n_trains=trains_per_run, progress_factory=factory)
-    print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct", "speed_at_point_mps"])
+    print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct",
+                "speed_at_point_mps"], csv_path=out / "headway.csv")
     out_console.print(f"wrote {out / 'headway.csv'}")
 
 
@@ -183,13 +251,12 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
 @click.option("--fixed-time-s", type=float, default=0.0, show_default=True,
               help="ETCS fixed times (route setting + MA transmission + reaction), s: added in the simulation and in the analytic headway; 10-20 s is typical")
 @click.option("--workers", type=int, default=None, help="Parallel processes (default: number of CPUs; 1 = in this process)")
-@click.option("--seed", type=int, default=42, show_default=True)
+@click.option("--seed", type=int, default=42, show_default=True, help=SEED_HELP)
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_sizes: str, directions: str, patterns: str | None, block_length_m: float | None,
                  step_length: float, vc_step_length: float, fixed_time_s: float, workers: int | None, seed: int, out: Path | None) -> None:
     """Line capacity under FBS, MB and VC (each controller, convoy sizes), per direction and stopping pattern."""
     from vcsumo.line import load_line
-    from vcsumo.sim.network import build_network
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.capacity import PATTERNS, run_capacity_study
@@ -219,7 +286,7 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
     n_workers = workers if workers is not None else (os.cpu_count() or 1)
     if n_workers < 1:
         raise VcsumoError(f"--workers: {workers} (at least 1)")
-    net = build_network(line, block_length_m)
+    net = network(line, block_length_m)
     out = out or default_out("capacity", line.name)
     with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params={"train": name, "controllers": ctrls, "convoy_sizes": sizes, "directions": dirs,
                        "patterns": pats, "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length,
@@ -233,7 +300,8 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
             df = run_capacity_study(line, net, stock, rf.path, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd,
                                     fixed_time_s=fixed_time_s, workers=n_workers)
     print_table(df, f"capacity — {line.name} ({name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
-                 "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"])
+                "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"],
+                csv_path=out / "capacity.csv", drop_first=["headway_analytic_s", "intra_convoy_gap_m", "min_gap_m"])
     out_console.print(f"wrote {out / 'capacity.csv'}")
 
 
@@ -241,11 +309,19 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
 @click.argument("study_file", type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (overrides the file's out)")
 def study_run_cmd(study_file: Path, out: Path | None) -> None:
-    """Run a study definition file (studies/*.yaml): capacity, headway, batch or junction."""
+    """Run a study definition file: capacity, headway, batch, junction or safety.
+
+    STUDY_FILE is a path, or the name of a shipped study (e.g. capacity_hcmc_line1, from the
+    package's data/studies/ or $VCSUMO_HOME/studies/).
+    """
     import os
 
     from vcsumo.cli.study_files import load_study, study_arguments
+    from vcsumo.line import project_root
 
+    shipped = project_root() / "studies" / f"{study_file}.yaml"
+    if not study_file.exists() and study_file.suffix not in (".yaml", ".yml") and shipped.is_file():
+        study_file = shipped
     st = load_study(study_file)
     args = study_arguments(st, Path(study_file), out)
     os.environ["VCSUMO_STUDY_FILE"] = str(Path(study_file).resolve())
@@ -283,7 +359,8 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
         with progress_bar() as prog, progress_task(prog, "felez2019") as upd:
             table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
     print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
-                 ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions"])
+                ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions"],
+                csv_path=out / "felez2019.csv")
     out_console.print(f"wrote {out / 'felez2019.csv'}")
 
 
@@ -331,9 +408,38 @@ def _register_safety() -> None:
 
 _register_safety()
 
+EXAMPLES = {
+    "lines": "vcsumo lines",
+    "build-network": "vcsumo build-network --line felez_test",
+    "run": "vcsumo run --line felez_test --timetable test --regime fbs --out results/felez-fbs",
+    "study headway": "vcsumo study headway --line felez_test --regime both",
+    "study capacity": "vcsumo study capacity --line firenze_bologna --controllers cbc,cbf-cbc --workers 2",
+    "study junction": "vcsumo study junction --line firenze_bologna --controllers cbc",
+    "study safety": "vcsumo study safety --scenarios 100 --controllers cbc,cbf-cbc --seed 7",
+    "study run": "vcsumo study run capacity_hcmc_line1 --out results/hcmc",
+    "batch": "vcsumo batch --line felez_test --timetables convoy --regimes fbs,vc --seeds 3",
+    "reproduce felez2019": "vcsumo reproduce felez2019 --strategies SH,MB --no-sweep",
+    "reproduce terlizzi2024": "vcsumo reproduce terlizzi2024 --scenario os1",
+    "reproduce": "vcsumo reproduce felez2019",
+}
+"""One example per command, shown at the end of its ``--help``."""
+
+
+def _add_examples(cmd: click.Command, path: str = "") -> None:
+    example = EXAMPLES.get(path)
+    if example and "Example:" not in (cmd.help or ""):
+        cmd.help = (cmd.help or "").rstrip() + f"\n\n\b\nExample:\n  {example}"
+    for name, sub in getattr(cmd, "commands", {}).items():
+        _add_examples(sub, f"{path} {name}".strip())
+
+
+_add_examples(cli)
+_add_verbosity_options(cli)
+
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
+    setup_logging(0, console)
     try:
         cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
     except VcsumoError as exc:

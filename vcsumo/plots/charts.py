@@ -10,6 +10,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from matplotlib.lines import Line2D  # noqa: E402
+
+from vcsumo.plots.common import distance_axis, read_table, set_clock_axis, train_styles  # noqa: E402
+
+LEGEND_MAX = 60
+"""At most this many legend entries in the run plot (the first trains, then "… and k more")."""
+
 
 def plot_headway(df: pd.DataFrame, path: Path) -> None:
     """Simulated vs analytic headway per measuring point, one panel per direction."""
@@ -34,27 +41,72 @@ def plot_headway(df: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_run(traj: pd.DataFrame, path: Path, title: str = "") -> None:
-    """Time-distance (graphical timetable) and speed-distance of every train in a run."""
-    if traj.empty:
-        return
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 8))
-    for train, g in traj.groupby("train"):
-        main = g[g.section == "main"]
-        a1.plot(main.time_s / 60.0, main.km, lw=1)
-        a2.plot(main.km, main.speed_mps * 3.6, lw=1, label=train)
-    a1.set_xlabel("time [min]")
-    a1.set_ylabel("km")
-    a1.set_title(title or "time–distance")
-    a1.grid(alpha=0.3)
+def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastructure: pd.DataFrame | Path | None = None):
+    """Graphical timetable (time–distance, clock time) and speed–distance of every train of a run.
+
+    Reads ``trajectories.csv`` and, for station names and signals on the distance axis,
+    ``infrastructure.csv`` (:mod:`vcsumo.infrastructure`).  Only the main line is drawn.  Styles
+    stay distinct for many trains (:func:`vcsumo.plots.common.train_styles`); the legend sits
+    outside the axes, at most :data:`LEGEND_MAX` entries.  Returns the figure (closed).
+    """
+    traj = read_table(traj)
+    infra = read_table(infrastructure)
+    if traj is None or traj.empty:
+        return None
+    traj = traj.sort_values("time_s", kind="stable")  # trains in order of departure
+    trains = list(dict.fromkeys(traj["train"].astype(str)))
+    styles, labels = train_styles(trains)
+    fig = plt.figure(figsize=(13, 9), layout="constrained")
+    a1, a2 = fig.subplots(2, 1, height_ratios=[3, 1.25])
+    directions = set()
+    for train, g in traj.groupby(traj["train"].astype(str), sort=False):
+        km = g["km"].where(g["section"] == "main")
+        if km.notna().sum() < 1:
+            continue
+        k = km.dropna()
+        directions.add("up" if k.iloc[-1] >= k.iloc[0] else "down")
+        st = styles[train]
+        a1.plot(g["time_s"], km, lw=1.0, color=st["color"], ls=st["ls"], label=labels.get(train, "_nolegend_"))
+        a2.plot(km, g["speed_mps"] * 3.6, lw=0.7, color=st["color"], ls=st["ls"], alpha=0.8)
+    t0, t1 = float(traj["time_s"].min()), float(traj["time_s"].max())
+    a1.set_xlim(t0 - 0.01 * (t1 - t0), t1 + 0.01 * (t1 - t0))
+    set_clock_axis(a1.xaxis, t0, t1)
+    a1.set_xlabel("clock time [HH:MM]")
+    main = traj.loc[traj["section"] == "main", "km"]
+    if len(main):
+        lo, hi = float(main.min()), float(main.max())
+        if infra is not None and len(infra):  # the stations just beyond the trains' ends too
+            near = max(0.05 * (hi - lo), 0.5)
+            st = infra.loc[(infra["kind"] == "station") & (infra["section"] == "main"), "km"].astype(float)
+            st = st[(st >= lo - near) & (st <= hi + near)]
+            lo, hi = min([lo, *st]), max([hi, *st])
+        pad = max(0.02 * (hi - lo), 0.05)
+        a1.set_ylim(lo - pad, hi + pad)
+        a2.set_xlim(lo - pad, hi + pad)
+    a1.grid(axis="x", alpha=0.3)
+    a1.grid(axis="x", which="minor", alpha=0.12)
+    a1.set_title(f"{title or 'time–distance'} — {len(trains)} train{'s' if len(trains) != 1 else ''}")
+    distance_axis(a1, infra, sorted(directions) or ("up", "down"))
     a2.set_xlabel("km")
     a2.set_ylabel("speed [km/h]")
+    a2.set_ylim(bottom=0)
     a2.grid(alpha=0.3)
-    if traj.train.nunique() <= 15:
-        a2.legend(fontsize=6, ncol=3)
-    fig.tight_layout()
+    distance_axis(a2, infra, axis="x", signals=False)
+    handles, names = a1.get_legend_handles_labels()
+    if len(handles) > LEGEND_MAX:  # the first trains, the signals, and how many more
+        keep = [k for k, n in enumerate(names) if n.startswith("signal")]
+        first = [k for k in range(len(handles)) if k not in keep][: LEGEND_MAX - len(keep) - 1]
+        more = len(handles) - len(first) - len(keep)
+        handles = [handles[k] for k in first] + [Line2D([], [], ls="none")] + [handles[k] for k in keep]
+        names = [names[k] for k in first] + [f"… and {more} more trains"] + [names[k] for k in keep]
+    if handles:
+        ncol = max(1, -(-len(handles) // 40))
+        grouped = len(trains) > 20 and any("trains)" in n for n in names)
+        fig.legend(handles, names, loc="outside right upper", fontsize=7 if len(handles) <= 40 else 6, ncol=ncol,
+                   title="services" if grouped else "trains", title_fontsize=8, frameon=False)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return fig
 
 
 def plot_felez2019(trajectories: dict, path: Path) -> None:
@@ -111,92 +163,6 @@ def plot_terlizzi2024(traj: pd.DataFrame, path: Path, title: str = "") -> None:
         a.grid(alpha=0.3)
     for a in axes[:4]:
         a.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_capacity(df: pd.DataFrame, path: Path) -> None:
-    """Capacity (trains/h per direction) by regime, controller and convoy size; one panel per direction × pattern."""
-    if df.empty:
-        return
-    groups = list(df.groupby(["direction", "stopping_pattern"]))
-    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.5), squeeze=False)
-    for ax, ((d, pat), g) in zip(axes[0], groups):
-        labels, values, colors = [], [], []
-        palette = {"fbs": "#888888", "mb": "#4477aa"}
-        vc_cols = ["#cc6677", "#ddcc77", "#117733", "#882255", "#44aa99", "#aa4499"]
-        ctrls = [c for c in dict.fromkeys(g[g.regime == "vc"].controller)]
-        for _, r in g.iterrows():
-            if r.regime == "vc":
-                labels.append(f"VC {r.controller}\nn={r.convoy_size}")
-                colors.append(vc_cols[ctrls.index(r.controller) % len(vc_cols)])
-            else:
-                labels.append(r.regime.upper())
-                colors.append(palette[r.regime])
-            values.append(r.capacity_trains_per_h)
-        ax.bar(range(len(values)), values, color=colors)
-        ax.set_xticks(range(len(values)), labels, rotation=60, fontsize=7, ha="right")
-        ax.set_ylabel("capacity [trains/h per direction]")
-        ax.set_title(f"{df.line.iloc[0]} — {d}, {pat}")
-        ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def plot_time_distance_stairs(examples: dict, setups: dict, path: Path, line_name: str) -> None:
-    """Time–distance diagram of one released sequence per regime with its blocking-time stairs.
-
-    FBS: one rectangle per block (from the approach point's time to the tail clearing the next
-    signal); MB / VC: the band reserved ahead of each unit (braking distance + 50 m) until its
-    last train's tail has passed.  Stairs come from the leader's unhindered run, shifted by the
-    release interval; the lines are the simulated trains.
-    """
-    import numpy as np
-
-    if not examples:
-        return
-    fig, axes = plt.subplots(1, len(examples), figsize=(6 * len(examples), 6), squeeze=False)
-    for ax, (regime, res) in zip(axes[0], examples.items()):
-        setup = setups[res.units[0][0].direction]
-        full = setup.full
-        run = res.run
-        t = run.time_s.to_numpy()
-        s = run.s_m.to_numpy()
-        v = run.speed_mps.to_numpy()
-        km = np.array([full.km_at(x)[1] for x in s])
-        stock = res.units[0][0].stock
-        n = len(res.units[0])
-        gap = res.row.get("intra_convoy_gap_m")
-        L_u = n * stock.length_m + (n - 1) * (gap if gap == gap and gap is not None else 0.0)
-        for j in range(len(res.units)):
-            shift = j * res.h
-            color = f"C{j}"
-            if res.blocks is not None:
-                for _, b in res.blocks.iterrows():
-                    k0, k1 = full.km_at(b.block_start_m)[1], full.km_at(b.block_end_m)[1]
-                    ax.fill_betweenx([k0, k1], (b.t_approach_s + shift) / 60, (b.t_clear_s + shift) / 60, color=color, alpha=0.25, lw=0)
-            else:
-                d = v * v / (2 * stock.service_brake_decel_mps2) + 50.0
-                t_app = np.interp(s - d, s, t, left=t[0])
-                t_clr = np.interp(s + L_u, s, t, right=np.nan)
-                ax.fill_betweenx(km, (t_app + shift) / 60, (t_clr + shift) / 60, color=color, alpha=0.25, lw=0)
-            ax.plot((t + shift) / 60, km, color=color, lw=0.8, ls="--")
-        traces = res.probe.sim.speed_traces if res.probe is not None else {}
-        for u in res.units:
-            for tr in u:
-                if tr.id in traces:
-                    ts, _ = traces[tr.id]
-                    off = full.length_m - tr.profile.length_m
-                    kms = [full.km_at(x + off)[1] for x in ts[::10]]
-                    tt = tr.depart_s + np.arange(len(ts))[::10] * (res.run.time_s.iloc[1] - res.run.time_s.iloc[0])
-                    ax.plot(tt / 60, kms, color="k", lw=0.9)
-        ax.set_xlabel("time [min]")
-        ax.set_ylabel("km")
-        title = regime.upper() if regime != "vc" else f"VC {res.row['controller']} n={n}"
-        ax.set_title(f"{line_name} {setup.direction}: {title}, h = {res.h:.1f} s")
-        ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

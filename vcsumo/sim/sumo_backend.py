@@ -94,8 +94,8 @@ class SumoBackend:
 
         self._ls = libsumo
         cmd = [sumo_binary("sumo")] + self.args
-        if self.error_log is not None:
-            cmd += ["--error-log", str(self.error_log)]
+        if self.error_log is not None:  # warnings go into the log only, not onto the terminal (over the progress bar)
+            cmd += ["--error-log", str(self.error_log), "--no-warnings", "true"]
         try:
             libsumo.start(cmd)
         except Exception as exc:  # libsumo raises TraCIException / FatalTraCIError

@@ -720,74 +720,7 @@ def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path]
             u = pd.read_csv(uic, dtype={"timetable_sha256": str})
             shas = set(df["timetable_sha256"])
             u[u["timetable_sha256"].isin(shas) & u["regime"].isin(regimes) & (u["window_s"] == window_s)].to_csv(rf.path / "uic406.csv", index=False)
+        from vcsumo.plots.batch import plot_delays, plot_punctuality
+
         plot_delays(out / "batch_trains.csv", rf.path / "batch_runs.csv", rf.path / "batch_delays.png")
         plot_punctuality(rf.path / "batch_runs.csv", rf.path / "batch_punctuality.png")
-
-
-def _label(regime: str, controller) -> str:
-    return regime if not isinstance(controller, str) or not controller else f"{regime}\n{controller}"
-
-
-def plot_delays(trains_csv: Path, runs_csv: Path, path: Path) -> None:
-    """Arrival-delay distributions per regime (box plots, one panel per timetable), from the CSVs."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    runs = pd.read_csv(runs_csv, dtype={"run_key": str, "controller": str}, keep_default_na=False)
-    tr = pd.read_csv(trains_csv, dtype={"run_key": str, "controller": str}, keep_default_na=False)
-    tr = tr[tr["run_key"].isin(set(runs["run_key"]))]
-    tr = tr[tr["arrived"].astype(str) == "True"].copy()
-    tr["arrival_delay_s"] = pd.to_numeric(tr["arrival_delay_s"], errors="coerce")
-    tts = list(dict.fromkeys(runs["timetable"])) or ["(none)"]
-    fig, axes = plt.subplots(1, len(tts), figsize=(max(4.0, 3.2 * len(tts)), 4.2), squeeze=False, sharey=True)
-    for ax, tt in zip(axes[0], tts):
-        sub = tr[tr["timetable"] == tt]
-        groups = list(dict.fromkeys(zip(runs.loc[runs["timetable"] == tt, "regime"], runs.loc[runs["timetable"] == tt, "controller"])))
-        data, labels = [], []
-        for regime, ctrl in groups:
-            vals = sub[(sub["regime"] == regime) & (sub["controller"] == ctrl)]["arrival_delay_s"].dropna().to_numpy() / 60.0
-            data.append(vals if len(vals) else [float("nan")])
-            labels.append(_label(regime, ctrl))
-        if data:
-            ax.boxplot(data, showfliers=True, widths=0.6)
-            ax.set_xticks(range(1, len(labels) + 1), labels)
-        for thr, ls in zip(PUNCTUALITY_THRESHOLDS_S, ("--", ":")):
-            ax.axhline(thr / 60.0, color="grey", ls=ls, lw=0.8)
-        ax.set_title(tt)
-        ax.grid(alpha=0.3, axis="y")
-    axes[0][0].set_ylabel("arrival delay [min]  (lines: 3 and 5 min)")
-    fig.suptitle(f"{runs['line'].iloc[0] if len(runs) else ''} — arrival delay per regime (all seeds)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_punctuality(runs_csv: Path, path: Path) -> None:
-    """Mean 3-min / 5-min punctuality per timetable and regime (bars), from batch_runs.csv."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    runs = pd.read_csv(runs_csv, dtype={"controller": str}, keep_default_na=False)
-    runs = runs[runs["status"] == "ok"].copy()
-    fig, ax = plt.subplots(figsize=(8, 4))
-    if len(runs):
-        for c in ("punctuality_3min_share", "punctuality_5min_share"):
-            runs[c] = pd.to_numeric(runs[c], errors="coerce")
-        g = runs.groupby(["timetable", "regime", "controller"], sort=False)[["punctuality_3min_share", "punctuality_5min_share"]].mean()
-        labels = [f"{t}\n{_label(r, c)}" for t, r, c in g.index]
-        x = range(len(g))
-        ax.bar([i - 0.2 for i in x], 100 * g["punctuality_3min_share"], width=0.4, label="≤ 3 min")
-        ax.bar([i + 0.2 for i in x], 100 * g["punctuality_5min_share"], width=0.4, label="≤ 5 min")
-        ax.set_xticks(list(x), labels, fontsize=7)
-        ax.legend(fontsize=8)
-    ax.set_ylabel("punctual trains [%]")
-    ax.set_ylim(0, 105)
-    ax.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-

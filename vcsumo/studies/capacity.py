@@ -465,8 +465,12 @@ def run_capacity_study(
         if len(fbs):
             df.loc[g.index, "gain_vs_fbs"] = (g.capacity_trains_per_h / float(fbs.iloc[0])).round(3)
     df.to_csv(out / "capacity.csv", index=False)
-    from vcsumo.plots.charts import plot_capacity, plot_time_distance_stairs
+    from vcsumo.infrastructure import write_infrastructure
+    from vcsumo.plots.capacity import plot_capacity, plot_time_distance_stairs
+    from vcsumo.studies.time_distance import write_time_distance
 
-    plot_capacity(df[df.error.isna() | (df.error.astype(str) == "")], out / "capacity.png")
-    plot_time_distance_stairs(examples, setups, out / "time_distance.png", line.name)
+    infra = write_infrastructure(net.topology, out)
+    td = write_time_distance(examples, setups, out, failed={reg: (c, results[c][1]) for reg, c in example_of.items() if results[c][0] is None})
+    plot_capacity(out / "capacity.csv", out / "capacity.png")
+    plot_time_distance_stairs(td, out / "time_distance.png", line.name, infrastructure=infra)
     return df
