@@ -170,11 +170,17 @@ class FaultStage:
     releases, s (at least one step); ``train_id``: the name in events (default ``obs.ego_id``).
     """
 
-    def __init__(self, controller, params: TrainParams | None = None, supervisor=None, train_id: str | None = None, recovery_s: float = 1.0):
+    def __init__(self, controller, params: TrainParams | None = None, supervisor=None, train_id: str | None = None, recovery_s: float = 1.0,
+                 guard=None):
         if not (recovery_s >= 0.0 and math.isfinite(recovery_s)):
             raise ValueError(f"recovery_s must be a finite non-negative time, got {recovery_s}")
         self.controller = controller
         self.supervisor = supervisor
+        self.guard = guard
+        """The separation guard (:class:`~vcsumo.control.guard.SeparationGuard`): ``limit(obs, cmd)``
+        applied to every command the stage issues, its own included (None: no guard)."""
+        self.last_nominal: Command | None = None
+        """The controller's latest command, before the supervisor and the guard."""
         self.params = params
         self.train_id = train_id
         self.recovery_s = float(recovery_s)
@@ -226,6 +232,7 @@ class FaultStage:
             cmd = self.controller.make_step(obs)
         except Exception as exc:  # noqa: BLE001 - any controller failure brakes the train
             return None, CONTROLLER_EXCEPTION, f"{type(self.controller).__name__} raised {type(exc).__name__}: {exc}"
+        self.last_nominal = cmd
         bad = _unusable_force(self.controller, cmd)
         if bad:
             return None, NON_FINITE_COMMAND, bad
@@ -248,6 +255,25 @@ class FaultStage:
     def make_step(self, obs: Observation) -> Command:
         """One step of the controller with fault handling (the Controller interface)."""
         bad = observation_fault(obs)
+        cmd = self._step(obs, bad)
+        if self.guard is None or bad is not None:
+            return cmd  # on a non-finite observation the emergency brake needs no guard
+        try:
+            out = self.guard.limit(obs, cmd)
+            fault = _unusable_force(self.guard, out)
+        except Exception as exc:  # noqa: BLE001 - a failing guard brakes the train like a failing controller
+            out, fault = None, f"{type(self.guard).__name__} raised {type(exc).__name__}: {exc}"
+        if not fault:
+            return out
+        kind = CONTROLLER_EXCEPTION if out is None else NON_FINITE_COMMAND
+        self._record(obs, kind, EMERGENCY_BRAKE, fault)
+        self._clean = 0
+        self.latched = True
+        if cmd.mode == FAULT_MODE:  # already the emergency brake
+            return cmd
+        return self._brake(obs, kind, fault, run_supervisor=False)
+
+    def _step(self, obs: Observation, bad: str | None) -> Command:
         kind, msg, cmd = (NON_FINITE_STATE, bad, None) if bad is not None else (None, "", None)
         if kind is None:
             cmd, kind, msg = self._step_controller(obs)
