@@ -6,11 +6,12 @@ uncertain parameters) and by the offline closed loop (:mod:`vcsumo.sim.offline`:
 campaign).  The SUMO runs use SUMO's Rail model as the plant instead.
 
 Brakes.  A command is clipped to the traction envelope min(M·a_dr, P_dr/v) above and to the
-**service brake** min(M·a_br, P_br/v) below (eq. 4a/4b).  A step with ``emergency=True`` uses the
-**emergency brake** instead: the brake force may reach :func:`emergency_brake_limit`,
-max(M·a_eb, service envelope) — the emergency deceleration a_eb of the rolling stock (of the
-*true* parameters the plant is given: a train at the top of its uncertainty box brakes at its
-top rate), not power-limited.  The emergency brake builds up like the service brake: the applied
+**service brake** min(M·a_br, P_br/v) below (eq. 4a/4b).  A step with ``emergency=True`` applies
+the **emergency brake** instead, whatever the command: the full force of
+:func:`emergency_brake_limit`, max(M·a_eb, service envelope) — the emergency deceleration a_eb of
+the *true* parameters the plant is given (a train at the top of its uncertainty box brakes at its
+top rate), not power-limited; like a real emergency brake it is not modulated.  It builds up like
+the service brake: the applied
 force follows the command through the first-order lag τ (eq. 1c) and its rate is bounded by the
 jerk limit j_max·M (eq. 4c) — e.g. an ETR1000 (τ = 0.5 s, j_max = 0.7 m/s³) goes from cruising
 (≈ +0.1 m/s² of force) to its full emergency brake (−1.2 m/s²) in ≈ 1.9 s of jerk-limited ramp
@@ -61,11 +62,13 @@ class TrainPlant:
         self.apply_jerk = apply_jerk
 
     def step(self, u_cmd_n: float, dt: float, emergency: bool = False) -> PlantState:
-        """Advance by ``dt`` under the command ``u_cmd_n`` (N); ``emergency``: brake with the
-        emergency brake (the force may reach :func:`emergency_brake_limit`, see the module doc)."""
+        """Advance by ``dt`` under the command ``u_cmd_n`` (N); ``emergency``: apply the full
+        emergency brake instead (:func:`emergency_brake_limit`, see the module doc)."""
         p, x = self.p, self.x
-        lo = emergency_brake_limit(p, x.v_mps) if emergency else brake_force_limit(p, x.v_mps)
-        u = float(np.clip(u_cmd_n, -lo, traction_limit(p, x.v_mps)))
+        if emergency:
+            u = -emergency_brake_limit(p, x.v_mps)
+        else:
+            u = float(np.clip(u_cmd_n, -brake_force_limit(p, x.v_mps), traction_limit(p, x.v_mps)))
         # the applied force F follows the command with lag τ (eq. 1c); its rate of change is
         # bounded by the jerk limit (eq. 4c / 12o: |F_{k+1} − F_k| ≤ j_max·M·Δt)
         force = lag_step(x.force_n, u, p.traction_lag_s, dt) if self.apply_lag else u

@@ -261,22 +261,24 @@ def _build_mpc(ctx: StackContext, params) -> Nominal:
         settings = settings.model_copy(update=update)
     end = ctx.profile.length_m if ctx.profile is not None else None
     p = ctx.ego.params()
-    key = None
-    if ctx.reuse is not None:
-        key = ("mpc", settings.model_dump_json(), p, end, id(ctx.profile))
-        ctrl = ctx.reuse.get(key)
-        if ctrl is not None:
+    ctrl = None
+    if ctx.reuse is not None:  # one instance per route, settings and follower (ego id), reset between builds
+        route_key = ("mpc-route", settings.model_dump_json(), p, end, id(ctx.profile))
+        key = route_key[1:] + (ctx.ego_id,)
+        cached = ctx.reuse.get(key)
+        if cached is not None and cached[0] is ctx.profile:
+            ctrl = cached[1]
             ctrl.reset()
-    if key is None or ctrl is None:
+    if ctrl is None:
         ctrl = FollowerMPC(p, settings, route_end_m=end)
         if ctx.reuse is not None:
-            donor = ctx.reuse.get(("mpc-route",) + key[1:])
-            if donor is not None:
-                ctrl.share_route_data(donor)
+            donor = ctx.reuse.get(route_key)
+            if donor is not None and donor[0] is ctx.profile:
+                ctrl.share_route_data(donor[1])  # the DP profile and terminal set of this route, computed once
             elif ctx.profile is not None:
                 ctrl.route_data(ctx.profile)
-                ctx.reuse[("mpc-route",) + key[1:]] = ctrl
-            ctx.reuse[key] = ctrl
+                ctx.reuse[route_key] = (ctx.profile, ctrl)
+            ctx.reuse[key] = (ctx.profile, ctrl)
     s = ctrl.settings
 
     def coupled(v: float) -> float:  # the relative braking distance of constraint 12m, at least d_des
