@@ -155,6 +155,10 @@ class SeparationGuard:
         self.d_min_m = float(d_min_m)
         self.cfg = config or GuardConfig()
         self.interventions = 0
+        self.last_speed_mps = math.nan
+        """The guard speed of the latest step, m/s."""
+        self.last_force_in_n = math.nan
+        """The force the guard received at the latest step (before limiting), N."""
 
     def limit(self, obs: Observation, cmd: Command) -> Command:
         p, prof = obs.params, obs.profile
@@ -165,22 +169,18 @@ class SeparationGuard:
         tf = prof.tunnel_factor_at(s)
         f_eb = -p.mass_kg * p.emergency_brake_decel_mps2  # the train brakes at most with its emergency brake
         force_in = float(cmd.force_n)
+        self.last_speed_mps, self.last_force_in_n = v_guard, force_in
         v_floor = max(0.0, v + dt * float(acceleration(p, v, f_eb, grad, tf)))
         v_cmd = max(v_floor, v + dt * float(acceleration(p, v, force_in, grad, tf)))
-        info = {**cmd.info, "guard_speed_mps": v_guard, "guard_force_in_n": force_in}
         if v_cmd <= v_guard + 1e-9:
-            force = max(force_in, f_eb)
-            if force == force_in:
-                return replace(cmd, info=info)
-            return replace(cmd, force_n=force, info=info)
+            return cmd if force_in >= f_eb else replace(cmd, force_n=f_eb)
         self.interventions += 1
         v_target = max(v_guard, v_floor)
         # the force that gives v_target after one step (eq. 1b solved for u)
         force = p.mass_kg * p.rotating_mass_factor * (v_target - v) / dt + float(running_resistance(p, v, tf)) + float(gradient_force(p, grad))
         force = max(min(force, force_in), f_eb)
         emergency = cmd.emergency or force < -float(brake_force_limit(p, max(v, 0.0))) - 1e-6
-        info["guard_intervened"] = True
-        return replace(cmd, force_n=force, emergency=emergency, info=info)
+        return replace(cmd, force_n=force, emergency=emergency, info={**cmd.info, "guard_speed_mps": v_guard})
 
 
 __all__ = ["GuardConfig", "load_guard", "guard_speed", "guaranteed_decel", "strongest_decel", "PredecessorEstimate", "predecessor_estimate",

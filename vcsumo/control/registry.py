@@ -101,8 +101,9 @@ class ControllerEntry:
     build: Callable[[StackContext, Any], Nominal]
     """``(ctx, params) -> Nominal``; ``params`` is the resolved Path of the parameter file or the
     settings object the caller gave."""
-    default_params: str
-    """Name of its default parameter file in ``controllers/``."""
+    default_params: str | None
+    """Name of its default parameter file in ``controllers/`` (None: it needs none; ``build`` then
+    gets None unless a ``:PARAMS`` file is named)."""
     uses_plans: bool
     """Predecessors must broadcast their predicted trajectories (SH predictor, RLP)."""
     standalone: bool = True
@@ -189,16 +190,19 @@ def parse_controller(spec: str, field: str | None = "--controller") -> tuple[str
 def check_controller(spec: str, field: str | None = "--controller", base_dir: Path | None = None, supervisor_params: ParamSpec = None) -> ControllerSpec:
     """Parse a name and resolve its parameter files (errors name ``field``); nothing is built."""
     s = controller_spec(spec, field)
-    resolve_params(s.params, s.entry.default_params, field, base_dir)
+    if s.params is not None or s.entry.default_params is not None:
+        resolve_params(s.params, s.entry.default_params, field, base_dir)
     if s.supervisor is not None and not isinstance(supervisor_params, BaseModel):
         resolve_params(supervisor_params, SUPERVISORS[s.supervisor].default_params, field, base_dir)
     return s
 
 
-def _params(spec: ParamSpec, default: str, ctx: StackContext) -> Any:
-    """A settings object as given, or the resolved parameter file."""
+def _params(spec: ParamSpec, default: str | None, ctx: StackContext) -> Any:
+    """A settings object as given, or the resolved parameter file (None: no file and no default)."""
     if isinstance(spec, BaseModel):
         return spec
+    if default is None and (spec is None or not str(spec).strip()):
+        return None
     return resolve_params(spec, default, ctx.field, ctx.base_dir)
 
 
@@ -211,7 +215,7 @@ def build_follower_stack(spec: str, ctx: StackContext) -> FollowerStack:
     entry = s.entry
     nominal_params = _params(ctx.params if ctx.params is not None else s.params, entry.default_params, ctx)
     built = entry.build(ctx, nominal_params)
-    files = {"nominal": str(nominal_params) if isinstance(nominal_params, Path) else "(given)"}
+    files = {"nominal": str(nominal_params) if isinstance(nominal_params, Path) else ("(given)" if nominal_params is not None else "")}
     supervisor, d_min = None, built.d_min_m
     if s.supervisor is not None:
         sup_entry = SUPERVISORS[s.supervisor]

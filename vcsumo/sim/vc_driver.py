@@ -378,9 +378,10 @@ class VCDriver:
             f_min = -p.mass_kg * p.emergency_brake_decel_mps2
             v_floor = max(0.0, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, f_min, grad, tf)))
             v_next = max(v_floor, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, float(cmd.force_n), grad, tf)))
-            f_in = cmd.info.get("guard_force_in_n", cmd.force_n)
-            v_nominal = max(v_floor, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, float(f_in), grad, tf)))
-            v_guard = cmd.info.get("guard_speed_mps", math.nan)
+            guard = f.stack.guard
+            f_in = guard.last_force_in_n if guard is not None and math.isfinite(guard.last_force_in_n) else float(cmd.force_n)
+            v_nominal = max(v_floor, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, f_in, grad, tf)))
+            v_guard = guard.last_speed_mps if guard is not None else math.nan
             commands[fid] = v_next
             if record:
                 gap_comm = None
