@@ -14,7 +14,11 @@ used by the SUMO loop (:class:`vcsumo.sim.vc_driver.VCDriver`) and by the offlin
    is ``non_finite_command``; a command flagged ``infeasible`` (the nominal problem had no solution,
    :class:`~vcsumo.control.base.Command`) is ``solver_failure``;
 3. passes the command through the supervisor, if any (an exception or a non-finite force there is
-   recorded the same way).
+   recorded the same way);
+4. passes every command it issues (its own emergency brake included) through the separation
+   guard, if any (:class:`~vcsumo.control.guard.SeparationGuard`; a guard that raises or returns a
+   non-finite force is a fault of the same kinds).  Stacks are built with it by
+   :func:`vcsumo.control.registry.build_follower_stack`.
 
 Actions.  On a fault the follower gets the **emergency brake** for that step: the force
 :func:`emergency_brake_force_n` (−max(M·a_eb, min(M·a_br, P_br/v)), eq. 4a/4b with the emergency
@@ -24,9 +28,9 @@ deceleration of the train model; with a CBF supervisor at least its K_E^F demand
 with a *usable fallback*: the controller reports ``infeasible`` but its command is a finite brake
 (force ≤ 0) and its plan, if it sends one, is finite — the NMPC's documented fallback, the full
 service brake −min(M·a_br, P_br/v) (:mod:`vcsumo.control.mpc`).  That command is passed on (the
-event is recorded with action ``controller_fallback``); in the SUMO loop the relative-braking guard
-downstream still caps the speed with the follower's emergency deceleration, and the offline plant
-clips every brake demand to the same service envelope anyway.
+event is recorded with action ``controller_fallback``); the separation guard downstream still
+limits it.  The emergency brake command is flagged ``emergency``: the SUMO loop applies the force
+(bounded by −M·a_eb), the offline plant its full emergency brake (:mod:`vcsumo.plant`).
 
 Latch.  After an emergency-brake fault the follower keeps braking until the observation has been
 valid *and* the controller (and supervisor) has returned a valid, feasible command for

@@ -59,9 +59,9 @@ from vcsumo.config import load_model
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
 from vcsumo.control.faults import FAULT_KINDS, faults_frame
-from vcsumo.control.guard import GuardConfig, guard_speed, guaranteed_decel, load_guard, strongest_decel  # noqa: F401 - re-exported
+from vcsumo.control.guard import GuardConfig, load_guard
 from vcsumo.control.params import resolve_params
-from vcsumo.control.registry import StackContext, build_follower_stack, controller_names, controller_spec, parse_controller  # noqa: F401 - re-exported
+from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError

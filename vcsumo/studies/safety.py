@@ -23,8 +23,8 @@ controller and does not depend on how many scenarios are run):
     cleared the junction;
 
 * the leader's cruise speed (30–100 % of the line speed there) and the time of its **emergency
-  brake** (its emergency brake at the top of its uncertainty box — the nominal a_eb scaled by
-  the top of the service-brake interval, ETR1000 1.29 m/s² — built up through its lag and jerk
+  brake** (its emergency brake at the top of its box — the separation model's range, nominal
+  +10 % in the default assumption set: ETR1000 1.32 m/s² — built up through its lag and jerk
   limit, held to a stop; :func:`true_params`): 10–120 s (cruise), 5–120 s (forming), 0–120 s
   (merge), around its arrival at the turnout (split);
 * 1..``followers_max`` followers;
@@ -318,13 +318,18 @@ def barrier_gap_m(sup, profile: RouteProfile, s_m: float, v_mps: float, length_m
 
 def true_params(stock: RollingStock, rng: np.random.Generator, corner: bool, emergency_top: bool = False) -> TrainParams:
     """A train's true parameters inside its uncertainty box (:func:`~vcsumo.control.proxies.sample_params`)
-    with an emergency deceleration in the box too: the nominal a_eb scaled like the service brake
-    (a_eb · a_br,true / a_br,nominal — the brake's efficiency), or at the top of the box
-    (a_eb · a_br,high / a_br,nominal: ETR1000 1.2 → 1.29 m/s²) with ``emergency_top``."""
+    with an emergency deceleration inside the separation model's emergency-brake range
+    (:func:`vcsumo.signalling.separation.brake_range`, the default assumption set: nominal ±10 %):
+    at the same place in that range as the drawn service brake in its interval (a corner stays a
+    corner), or at its top with ``emergency_top`` (the leader's worst case: ETR1000 1.2 → 1.32 m/s²)."""
+    from vcsumo.signalling.assumptions import load_assumptions
+    from vcsumo.signalling.separation import brake_range
+
     p = sample_params(stock, rng, corner=corner)
-    nom = stock.params()
-    a_br = stock.uncertainty_box().service_brake_decel_mps2.high if emergency_top else p.service_brake_decel_mps2
-    return p.with_(emergency_brake_decel_mps2=max(nom.emergency_brake_decel_mps2 * a_br / nom.service_brake_decel_mps2, p.service_brake_decel_mps2))
+    lo, hi = brake_range(stock, load_assumptions(), "emergency")
+    box = stock.uncertainty_box().service_brake_decel_mps2
+    frac = 1.0 if emergency_top else ((p.service_brake_decel_mps2 - box.low) / (box.high - box.low) if box.high > box.low else 0.5)
+    return p.with_(emergency_brake_decel_mps2=max(lo + frac * (hi - lo), p.service_brake_decel_mps2))
 
 
 # -------------------------------------------------------------------------------------------
