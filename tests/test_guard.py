@@ -13,7 +13,8 @@ from vcsumo.plant import PlantState, TrainPlant, emergency_brake_limit
 from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.sim.offline import flat_profile, steady_force
 
-P = load_rolling_stock("etr1000").params()
+STOCK = load_rolling_stock("etr1000")
+P = STOCK.params()
 L = P.length_m
 DT = 0.2
 PROFILE = flat_profile(50000.0, speed_limit_mps=90.0)
@@ -30,14 +31,14 @@ def _speed_after(force: float, v: float) -> float:
 
 
 def test_a_command_within_the_guard_speed_passes_unchanged():
-    g = SeparationGuard(P, 50.0)
+    g = SeparationGuard(STOCK, STOCK, 50.0)
     cmd = Command(1e4, mode="cbc")
     out = g.limit(_obs(sensed_gap=3000.0, sensed_speed=50.0), cmd)
     assert out is cmd and g.interventions == 0 and g.last_speed_mps > 50.0 and g.last_force_in_n == 1e4
 
 
 def test_a_command_too_fast_is_limited_to_the_guard_speed_and_counted():
-    g = SeparationGuard(P, 50.0)
+    g = SeparationGuard(STOCK, STOCK, 50.0)
     obs = _obs(sensed_gap=160.0, sensed_speed=50.0)  # both at 50 m/s, 160 m apart: the guard speed is just below 50 m/s
     out = g.limit(obs, Command(2e5))
     v_guard = out.info["guard_speed_mps"]
@@ -48,7 +49,7 @@ def test_a_command_too_fast_is_limited_to_the_guard_speed_and_counted():
 
 
 def test_the_guard_never_asks_more_than_the_emergency_brake_and_flags_it():
-    g = SeparationGuard(P, 50.0)
+    g = SeparationGuard(STOCK, STOCK, 50.0)
     out = g.limit(_obs(sensed_gap=5.0, sensed_speed=0.0), Command(0.0))  # a standing train 5 m ahead
     assert out.info["guard_speed_mps"] == 0.0
     assert out.force_n == pytest.approx(-P.mass_kg * P.emergency_brake_decel_mps2)
@@ -64,13 +65,13 @@ def test_predecessor_knowledge_sensed_then_message_then_nothing():
     blind = predecessor_estimate(_obs(msg=Message("L", 8.0, TrainStateMsg(8.0, math.nan, 40.0), L)), L)
     assert (blind.source, blind.front_m, blind.speed_mps) == ("none", 1000.0, 0.0)
     # knowing nothing, the follower is held at standstill speed: the predecessor may stand at its front
-    g = SeparationGuard(P, 50.0)
+    g = SeparationGuard(STOCK, STOCK, 50.0)
     out = g.limit(_obs(), Command(1e5))
     assert g.last_speed_mps == 0.0 and out.force_n == pytest.approx(-P.mass_kg * P.emergency_brake_decel_mps2)
 
 
 def test_near_its_stop_the_guard_keeps_to_the_service_brake():
-    g = SeparationGuard(P, 50.0)
+    g = SeparationGuard(STOCK, STOCK, 50.0)
     g.limit(_obs(sensed_gap=20000.0, sensed_speed=50.0), Command(0.0))
     free = g.last_speed_mps
     g.limit(_obs(sensed_gap=20000.0, sensed_speed=50.0, stop=1000.0 + 2000.0), Command(0.0))
@@ -83,7 +84,7 @@ def test_near_its_stop_the_guard_keeps_to_the_service_brake():
 def test_guard_config_choices_are_the_braking_assumptions():
     v = {}
     for dec in ("emergency", "service"):
-        g = SeparationGuard(P, 50.0, GuardConfig(follower_decel=dec))
+        g = SeparationGuard(STOCK, STOCK, 50.0, GuardConfig(follower_decel=dec))
         g.limit(_obs(sensed_gap=1500.0, sensed_speed=50.0), Command(0.0))
         v[dec] = g.last_speed_mps
     assert v["service"] < v["emergency"]

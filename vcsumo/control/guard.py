@@ -23,8 +23,8 @@ deceleration (:func:`strongest_decel`) from the state it was last known in.  The
 Approaching its own stop (``Observation.next_stop_m``) the follower keeps to its service brake and
 the stop point is an obstacle too.  The formula assumes nominal braking of both trains, no brake
 build-up and no position error; the robust separation model replaces it in one place
-(:func:`guard_speed_limit` takes every input that model needs: both trains, the route, the
-predecessor's last known state and its age, the step).
+(:meth:`SeparationGuard.speed_limit`: the guard holds both trains' rolling stock, the observation
+gives the route, the step and the predecessor's last known state with its age).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from pydantic import Field
 from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Observation
 from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance
+from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.units import G
 
@@ -146,25 +147,32 @@ def guard_speed_limit(follower: TrainParams, predecessor: TrainParams, profile: 
 class SeparationGuard:
     """Force filter ``limit(obs, cmd) -> Command`` keeping the guard speed (see the module doc).
 
-    ``predecessor``: the predecessor's nominal train model (length, braking); ``d_min_m``: the
-    stack's minimum safe gap; ``config``: which decelerations the guard assumes.  The follower's
-    model is ``obs.params``.  ``interventions`` counts the steps it lowered the command."""
+    ``follower``/``predecessor``: the two trains' rolling stock (their models and uncertainty boxes);
+    ``d_min_m``: the stack's minimum safe gap; ``config``: which decelerations the guard assumes.
+    ``interventions`` counts the steps it lowered the command; ``last_speed_mps`` and
+    ``last_force_in_n`` are the latest step's guard speed and incoming force."""
 
-    def __init__(self, predecessor: TrainParams, d_min_m: float, config: GuardConfig | None = None):
+    def __init__(self, follower: RollingStock, predecessor: RollingStock, d_min_m: float, config: GuardConfig | None = None):
+        self.follower = follower
         self.predecessor = predecessor
+        self.follower_params = follower.params()
+        self.predecessor_params = predecessor.params()
         self.d_min_m = float(d_min_m)
         self.cfg = config or GuardConfig()
         self.interventions = 0
         self.last_speed_mps = math.nan
-        """The guard speed of the latest step, m/s."""
         self.last_force_in_n = math.nan
-        """The force the guard received at the latest step (before limiting), N."""
+
+    def speed_limit(self, obs: Observation, pred: PredecessorEstimate) -> float:
+        """The guard speed for this step, m/s — the one call into the separation rule (today
+        :func:`guard_speed_limit` on the nominal models)."""
+        return guard_speed_limit(self.follower_params, self.predecessor_params, obs.profile, obs.ego.position_m, obs.ego.speed_mps, pred,
+                                 obs.step_s, self.d_min_m, self.cfg, obs.next_stop_m)
 
     def limit(self, obs: Observation, cmd: Command) -> Command:
         p, prof = obs.params, obs.profile
         s, v, dt = obs.ego.position_m, obs.ego.speed_mps, obs.step_s
-        pred = predecessor_estimate(obs, self.predecessor.length_m)
-        v_guard = guard_speed_limit(p, self.predecessor, prof, s, v, pred, dt, self.d_min_m, self.cfg, obs.next_stop_m)
+        v_guard = self.speed_limit(obs, predecessor_estimate(obs, self.predecessor_params.length_m))
         grad = prof.mean_gradient(s, p.length_m)
         tf = prof.tunnel_factor_at(s)
         f_eb = -p.mass_kg * p.emergency_brake_decel_mps2  # the train brakes at most with its emergency brake

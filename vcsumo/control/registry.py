@@ -228,7 +228,7 @@ def build_follower_stack(spec: str, ctx: StackContext) -> FollowerStack:
         controller = SampledController(controller, ctx.control_period_s)
     guard = None
     if ctx.guard is not None and ctx.guard is not False:
-        guard = SeparationGuard(ctx.predecessor.params(), d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else GuardConfig())
+        guard = SeparationGuard(ctx.ego, ctx.predecessor, d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else GuardConfig())
     stage = FaultStage(controller, ctx.ego.params(), supervisor, ctx.ego_id, ctx.recovery_s, guard=guard)
     return FollowerStack(s.name, built.controller, supervisor, guard, stage, d_min, built.coupled_gap, entry.uses_plans, files)
 
