@@ -83,7 +83,7 @@ def _load_channel(p: Path):
 
 
 def _load_guard(p: Path):
-    from vcsumo.sim.vc_driver import load_guard
+    from vcsumo.control.guard import load_guard
 
     return load_guard(p)
 

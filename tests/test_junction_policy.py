@@ -17,7 +17,7 @@ from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.sim.junction_policy import SIGNAL_MARGIN_M, JunctionPolicy, MergeSignal
 from vcsumo.sim.loop import Snapshot, TrainState
-from vcsumo.sim.vc_driver import guaranteed_decel
+from vcsumo.control.guard import guaranteed_decel
 from vcsumo.timetable import PlannedTrain
 
 DT = 0.2

@@ -13,7 +13,8 @@ from vcsumo.line import load_line
 from vcsumo.sim.network import build_network
 from vcsumo.sim.loop import Scenario, simulate
 from vcsumo.timetable import load_timetable, plan_trains
-from vcsumo.sim.vc_driver import guard_speed, make_vc_driver
+from vcsumo.control.guard import guard_speed
+from vcsumo.sim.vc_driver import make_vc_driver
 
 from .conftest import write
 
@@ -115,7 +116,7 @@ def test_convoy_with_unequal_repeats_is_rejected(tmp_path):
 
 def test_guard_decelerations_are_conservative():
     from vcsumo.rolling_stock import load_rolling_stock
-    from vcsumo.sim.vc_driver import guaranteed_decel, strongest_decel
+    from vcsumo.control.guard import guaranteed_decel, strongest_decel
 
     p = load_rolling_stock("etr1000").params()
     # follower: emergency force over M·rho, only A of the resistance, the downhill counted against it

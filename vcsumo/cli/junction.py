@@ -61,7 +61,7 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.junction import ROLES, SIGNAL_VARIANTS, resolve_junctions, run_junction_study
-    from vcsumo.sim.vc_driver import parse_controller
+    from vcsumo.control.registry import parse_controller
 
     for name, v in (("--step-length", step_length), ("--vc-step-length", vc_step_length)):
         if v <= 0 or v > 2:

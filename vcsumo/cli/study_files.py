@@ -178,17 +178,9 @@ def _check_train(spec: str) -> None:
 
 def _check_controller(spec: str) -> None:
     """A VC controller name (``cbc``, ``cbf-cbc``, ...), optionally with a parameter set after a colon."""
-    from vcsumo.sim.vc_driver import VC_CONTROLLERS, controllers_dir
+    from vcsumo.control.registry import check_controller
 
-    name, _, params = spec.partition(":")
-    if name not in VC_CONTROLLERS:
-        raise InputError(None, None, f"unknown controller '{name}' (choose from {', '.join(VC_CONTROLLERS)}; NAME:PARAMS picks a parameter file)")
-    if params:
-        p = Path(params)
-        found = is_file(p) if p.suffix in (".yaml", ".yml") else is_file(controllers_dir() / f"{params}.yaml")
-        if not found:
-            avail = ", ".join(sorted(x.stem for x in controllers_dir().glob("*.yaml")))
-            raise InputError(None, None, f"controller parameter set '{params}' not found (available: {avail}; or a path to a .yaml file)")
+    check_controller(spec, None)
 
 
 def _resolve(spec: str, base: Path) -> str:

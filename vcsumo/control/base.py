@@ -10,9 +10,11 @@ so a gap is ``leader.position_m - leader_length_m - ego.position_m``.  The ego r
 (speed limits, gradients, tunnels) is given as a :class:`~vcsumo.route_profile.RouteProfile`.
 
 A safety filter wraps a controller: ``Supervisor.filter(obs, nominal) -> Command`` (the CBF
-supervisor of Terlizzi et al. is one).  The loop applies a command by asking SUMO for the speed
-the train reaches after one step under that force (eq. 1b), with SUMO's traction and braking
-limits still enforced.
+supervisor of Terlizzi et al. is one).  The stack that drives a follower (controller →
+supervisor → separation guard → fault stage) is built by name in :mod:`vcsumo.control.registry`.
+The SUMO loop applies a command by asking SUMO for the speed the train reaches after one step
+under that force (eq. 1b), with SUMO's traction limit still enforced; the offline loop applies
+it to a :class:`~vcsumo.plant.TrainPlant` (``emergency`` commands with the emergency brake).
 """
 
 from __future__ import annotations
@@ -79,6 +81,10 @@ class Observation:
     """On-board sensed speed of the predecessor, m/s."""
     target_speed_mps: float | None = None
     """For a convoy leader: the speed the timetable/scenario asks for (None: line speed)."""
+    next_stop_m: float | None = None
+    """The ego's own stop ahead (ego route frame, m) once the loop is about to hand the train over
+    for it (None: no stop near); the separation guard keeps to the service brake and treats it as
+    an obstacle."""
 
 
 @dataclass(frozen=True)

@@ -527,11 +527,10 @@ class CBFSupervisor:
     @classmethod
     def from_files(cls, leader: str | Path, follower: str | Path, config: str | Path | None = None, leader_id: str | None = None) -> "CBFSupervisor":
         """Build from rolling-stock names/paths and a CBF YAML file (default ``controllers/cbf.yaml``)."""
-        from vcsumo.line import project_root
+        from vcsumo.control.params import resolve_params
         from vcsumo.rolling_stock import load_rolling_stock
 
-        cfg_path = Path(config) if config is not None else project_root() / "controllers" / "cbf.yaml"
-        return cls(load_rolling_stock(leader), load_rolling_stock(follower), load_cbf_config(cfg_path), leader_id)
+        return cls(load_rolling_stock(leader), load_rolling_stock(follower), load_cbf_config(resolve_params(config, "cbf", "config")), leader_id)
 
     # ---------------------------------------------------------------------------------------
     def model_for(self, profile: RouteProfile | None) -> BarrierModel:

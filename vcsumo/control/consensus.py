@@ -51,7 +51,6 @@ from vcsumo.control.base import Command, Message, Observation
 from vcsumo.control.gap_reference import GapReference, GapSample, SteadyGap
 from vcsumo.control.topology_graph import ConvoyGraph, TopologyName, convoy_graph
 from vcsumo.dynamics import V_EPS_MPS, TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance, traction_limit
-from vcsumo.errors import InputError
 from vcsumo.units import G
 
 # ---------------------------------------------------------------------------------------------
@@ -110,20 +109,12 @@ class CbcParams(StrictModel):
         return self
 
 
-def controllers_dir() -> Path:
-    from vcsumo.line import project_root
+def load_cbc_params(spec: str | Path = "cbc", field: str | None = "controller", base_dir: str | Path | None = None) -> CbcParams:
+    """Load CBC settings by name (``cbc`` → ``controllers/cbc.yaml``) or by path to a YAML file
+    (resolved by :func:`vcsumo.control.params.resolve_params`; errors name ``field``)."""
+    from vcsumo.control.params import resolve_params
 
-    return project_root() / "controllers"
-
-
-def load_cbc_params(spec: str | Path = "cbc") -> CbcParams:
-    """Load CBC settings by name (``cbc`` → ``controllers/cbc.yaml``) or by path to a YAML file."""
-    path = Path(spec)
-    if path.suffix not in (".yaml", ".yml"):
-        path = controllers_dir() / f"{spec}.yaml"
-        if not path.is_file():
-            raise InputError(None, "controller", f"unknown controller settings '{spec}' (no {path})")
-    return load_model(CbcParams, path)
+    return load_model(CbcParams, resolve_params(spec, "cbc", field, base_dir))
 
 
 # ---------------------------------------------------------------------------------------------

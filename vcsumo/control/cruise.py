@@ -533,12 +533,11 @@ class SwitchedCruiseController:
     def from_files(cls, leader: str | Path, follower: str | Path, config: str | Path | None = None, cbf: str | Path | None = None, leader_id: str | None = None) -> "SwitchedCruiseController":
         """Build from rolling-stock names/paths and YAML files (defaults in ``controllers/``)."""
         from vcsumo.control.cbf import load_cbf_config
-        from vcsumo.line import project_root
+        from vcsumo.control.params import resolve_params
         from vcsumo.rolling_stock import load_rolling_stock
 
-        root = project_root() / "controllers"
-        c = load_cruise_config(config if config is not None else root / "cruise_terlizzi2024.yaml")
-        b = load_cbf_config(cbf if cbf is not None else root / "cbf.yaml")
+        c = load_cruise_config(resolve_params(config, "cruise_terlizzi2024", "config"))
+        b = load_cbf_config(resolve_params(cbf, "cbf", "cbf"))
         return cls(load_rolling_stock(leader), load_rolling_stock(follower), c, b, leader_id)
 
     # ---------------------------------------------------------------------------------------

@@ -14,7 +14,11 @@ used by the SUMO loop (:class:`vcsumo.sim.vc_driver.VCDriver`) and by the offlin
    is ``non_finite_command``; a command flagged ``infeasible`` (the nominal problem had no solution,
    :class:`~vcsumo.control.base.Command`) is ``solver_failure``;
 3. passes the command through the supervisor, if any (an exception or a non-finite force there is
-   recorded the same way).
+   recorded the same way);
+4. passes every command it issues (its own emergency brake included) through the separation
+   guard, if any (:class:`~vcsumo.control.guard.SeparationGuard`; a guard that raises or returns a
+   non-finite force is a fault of the same kinds).  Stacks are built with it by
+   :func:`vcsumo.control.registry.build_follower_stack`.
 
 Actions.  On a fault the follower gets the **emergency brake** for that step: the force
 :func:`emergency_brake_force_n` (−max(M·a_eb, min(M·a_br, P_br/v)), eq. 4a/4b with the emergency
@@ -24,9 +28,9 @@ deceleration of the train model; with a CBF supervisor at least its K_E^F demand
 with a *usable fallback*: the controller reports ``infeasible`` but its command is a finite brake
 (force ≤ 0) and its plan, if it sends one, is finite — the NMPC's documented fallback, the full
 service brake −min(M·a_br, P_br/v) (:mod:`vcsumo.control.mpc`).  That command is passed on (the
-event is recorded with action ``controller_fallback``); in the SUMO loop the relative-braking guard
-downstream still caps the speed with the follower's emergency deceleration, and the offline plant
-clips every brake demand to the same service envelope anyway.
+event is recorded with action ``controller_fallback``); the separation guard downstream still
+limits it.  The emergency brake command is flagged ``emergency``: the SUMO loop applies the force
+(bounded by −M·a_eb), the offline plant its full emergency brake (:mod:`vcsumo.plant`).
 
 Latch.  After an emergency-brake fault the follower keeps braking until the observation has been
 valid *and* the controller (and supervisor) has returned a valid, feasible command for
@@ -170,11 +174,17 @@ class FaultStage:
     releases, s (at least one step); ``train_id``: the name in events (default ``obs.ego_id``).
     """
 
-    def __init__(self, controller, params: TrainParams | None = None, supervisor=None, train_id: str | None = None, recovery_s: float = 1.0):
+    def __init__(self, controller, params: TrainParams | None = None, supervisor=None, train_id: str | None = None, recovery_s: float = 1.0,
+                 guard=None):
         if not (recovery_s >= 0.0 and math.isfinite(recovery_s)):
             raise ValueError(f"recovery_s must be a finite non-negative time, got {recovery_s}")
         self.controller = controller
         self.supervisor = supervisor
+        self.guard = guard
+        """The separation guard (:class:`~vcsumo.control.guard.SeparationGuard`): ``limit(obs, cmd)``
+        applied to every command the stage issues, its own included (None: no guard)."""
+        self.last_nominal: Command | None = None
+        """The controller's latest command, before the supervisor and the guard."""
         self.params = params
         self.train_id = train_id
         self.recovery_s = float(recovery_s)
@@ -226,6 +236,7 @@ class FaultStage:
             cmd = self.controller.make_step(obs)
         except Exception as exc:  # noqa: BLE001 - any controller failure brakes the train
             return None, CONTROLLER_EXCEPTION, f"{type(self.controller).__name__} raised {type(exc).__name__}: {exc}"
+        self.last_nominal = cmd
         bad = _unusable_force(self.controller, cmd)
         if bad:
             return None, NON_FINITE_COMMAND, bad
@@ -248,6 +259,25 @@ class FaultStage:
     def make_step(self, obs: Observation) -> Command:
         """One step of the controller with fault handling (the Controller interface)."""
         bad = observation_fault(obs)
+        cmd = self._step(obs, bad)
+        if self.guard is None or bad is not None:
+            return cmd  # on a non-finite observation the emergency brake needs no guard
+        try:
+            out = self.guard.limit(obs, cmd)
+            fault = _unusable_force(self.guard, out)
+        except Exception as exc:  # noqa: BLE001 - a failing guard brakes the train like a failing controller
+            out, fault = None, f"{type(self.guard).__name__} raised {type(exc).__name__}: {exc}"
+        if not fault:
+            return out
+        kind = CONTROLLER_EXCEPTION if out is None else NON_FINITE_COMMAND
+        self._record(obs, kind, EMERGENCY_BRAKE, fault)
+        self._clean = 0
+        self.latched = True
+        if cmd.mode == FAULT_MODE:  # already the emergency brake
+            return cmd
+        return self._brake(obs, kind, fault, run_supervisor=False)
+
+    def _step(self, obs: Observation, bad: str | None) -> Command:
         kind, msg, cmd = (NON_FINITE_STATE, bad, None) if bad is not None else (None, "", None)
         if kind is None:
             cmd, kind, msg = self._step_controller(obs)

@@ -95,13 +95,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vcsumo.control.base import Message, Observation, TrainStateMsg
+from vcsumo.control.base import Command, Observation
 from vcsumo.control.dp_profile import straight_route_profile
-from vcsumo.control.mpc import FollowerMPC, LeaderMPC, MPCSettings, load_mpc_settings
+from vcsumo.control.mpc import LeaderMPC, MPCSettings, load_mpc_settings
+from vcsumo.control.params import resolve_params
 from vcsumo.dynamics import TrainParams, running_resistance
-from vcsumo.line import project_root
-from vcsumo.plant import PlantState, TrainPlant
+from vcsumo.plant import PlantState
 from vcsumo.rolling_stock import load_rolling_stock
+from vcsumo.sim.offline import OfflineTrain, follower_stacks, run_convoy
 
 PAPER = {
     "SH": {"stop_distance_m": 28.5, "stop_delay_s": 2.0},
@@ -112,7 +113,7 @@ PAPER = {
 
 
 def default_settings_path() -> Path:
-    return project_root() / "controllers" / "mpc_felez2019.yaml"
+    return resolve_params(None, "mpc_felez2019")
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,7 @@ class Scenario:
 
 def load_scenario(settings_path: str | Path | None = None, **changes) -> Scenario:
     """The scenario with the Table II parameter set (``controllers/mpc_felez2019.yaml``)."""
-    settings = load_mpc_settings(settings_path or default_settings_path())
+    settings = load_mpc_settings(resolve_params(settings_path, "mpc_felez2019", "settings_path"))
     return replace(Scenario(settings=settings), **changes)
 
 
@@ -167,29 +168,39 @@ class RunResult:
     solve_times_s: dict = field(default_factory=dict)
 
 
-def _message(sender: str, t: float, plant: TrainPlant, cmd, length_m: float) -> Message:
-    st = TrainStateMsg(time_s=t, position_m=plant.x.s_m, speed_mps=plant.x.v_mps, accel_mps2=plant.x.accel_mps2, force_n=plant.x.force_n)
-    if cmd is None:
-        return Message(sender=sender, sent_time_s=t, state=st, length_m=length_m, received_time_s=t)
-    return Message(sender=sender, sent_time_s=t, state=st, length_m=length_m, plan_times_s=cmd.plan_times_s, plan_positions_m=cmd.plan_positions_m,
-                   plan_speeds_mps=cmd.plan_speeds_mps, plan_forces_n=cmd.plan_forces_n, received_time_s=t)
+class _UnannouncedStop:
+    """The leader of ``leader_braking="emergency"``: its NMPC drives until, from the point from which
+    it stops at ``stop_m``, it brakes at a^l without having announced it (its plan is the
+    constant-deceleration stop it then performs)."""
+
+    def __init__(self, mpc: LeaderMPC, params: TrainParams, a_mps2: float, stop_m: float, horizon: int):
+        self.mpc, self.p, self.a, self.stop_m, self.horizon = mpc, params, a_mps2, stop_m, horizon
+        self.braking = False
+
+    def make_step(self, obs: Observation):
+        x = obs.ego
+        self.braking = self.braking or x.position_m + _emergency_distance(x.speed_mps, self.a, self.p, obs.step_s) >= self.stop_m
+        if self.braking:
+            return _emergency_command(x.position_m, x.speed_mps, self.p, self.a, obs.time_s, obs.step_s, self.horizon)
+        return self.mpc.make_step(obs)
 
 
 def simulate(strategy: str = "SH", n_trains: int = 2, horizon: int | None = None, scenario: Scenario | None = None) -> RunResult:
     """Run the leader (eq. 11) and ``n_trains − 1`` followers (eq. 12 with the ``strategy`` predictor).
 
     Every train is a :class:`TrainPlant` (eq. 6b with the force lag 1c) of the ``felez2019``
-    rolling stock; the controllers are called through ``make_step`` with an
-    :class:`Observation` each Δt.  A follower measures its predecessor's gap and speed (on-board
-    sensor, §III-A) and, for SH, receives the predecessor's plan computed one step earlier
-    (eq. 16: u*_{·|t−1}).
+    rolling stock, in the offline loop :func:`vcsumo.sim.offline.run_convoy`; the followers are the
+    registry's ``mpc`` stacks in the paper's architecture (no separation guard), stepped each Δt.  A
+    follower measures its predecessor's gap and speed (on-board sensor, §III-A) and, for SH,
+    receives the predecessor's plan computed one step earlier (eq. 16: u*_{·|t−1}) over an ideal
+    channel.
     """
     sc = scenario or load_scenario()
-    update = {} if horizon is None else {"horizon_steps": int(horizon)}
+    update = {"predictor": strategy.upper()} if horizon is None else {"horizon_steps": int(horizon), "predictor": strategy.upper()}
     a_f = dict(sc.a_follower_by_strategy_mps2).get(strategy.upper())
     if a_f is not None:
         update["a_follower_mps2"] = float(a_f)
-    cfg = sc.settings.model_copy(update=update) if update else sc.settings
+    cfg = sc.settings.model_copy(update=update)
     stock = load_rolling_stock(sc.train)
     params: TrainParams = stock.params()
     dt = cfg.step_s
@@ -197,7 +208,6 @@ def simulate(strategy: str = "SH", n_trains: int = 2, horizon: int | None = None
     route = straight_route_profile(stop_m, sc.speed_limit_mps)
     gap0 = cfg.d_min_m if sc.initial_gap_m is None else sc.initial_gap_m
     ids = [f"T{i}" for i in range(n_trains)]
-    plants, ctrls = [], []
     emergency = sc.leader_braking == "emergency"
     if emergency:  # the NMPC's movement authority ends beyond the emergency stop
         route = straight_route_profile(stop_m + 1000.0, sc.speed_limit_mps)
@@ -211,67 +221,37 @@ def simulate(strategy: str = "SH", n_trains: int = 2, horizon: int | None = None
         lead_params = params.with_(service_brake_decel_mps2=a_brake, max_brake_power_w=math.inf)
     else:
         lead_params = params
+    leader = LeaderMPC(lead_params if sc.leader_braking == "mpc-emergency" else params, cfg, route_end_m=None if emergency else stop_m)
+    stacks = follower_stacks("mpc", [stock] * n_trains, ids, dt, route, params=cfg, guard=False)
+    trains = []
     for i in range(n_trains):
         s0 = sc.origin_m - i * (params.length_m + gap0)
-        plants.append(TrainPlant(lead_params if i == 0 else params, PlantState(s0, 0.0, 0.0), route, apply_lag=True, apply_jerk=sc.plant_jerk))
-        if i == 0:
-            ctrls.append(LeaderMPC(lead_params if sc.leader_braking == "mpc-emergency" else params, cfg, route_end_m=None if emergency else stop_m))
-        else:
-            ctrls.append(FollowerMPC(params, cfg, predictor=strategy, route_end_m=None if emergency else stop_m))
-    braking = False
-    rows = []
-    last_cmd = [None] * n_trains
-    t = 0.0
-    stopped_since = None
-    moved = False
+        driver = (_UnannouncedStop(leader, params, cfg.a_leader_mps2, stop_m, cfg.horizon_steps) if emergency else leader) if i == 0 else stacks[i - 1]
+        trains.append(OfflineTrain(ids[i], lead_params if i == 0 else params, PlantState(s0, 0.0, 0.0), driver, nominal=params,
+                                   target_speed_mps=sc.objective_speed_mps))
+    still = {"since": None, "moved": False}
+
+    def settled(t: float, xs: list) -> bool:
+        """All trains at rest for ``settle_s`` after having moved (checked on the states the last step produced)."""
+        if t == 0.0:
+            return False
+        t_prev = t - dt
+        moving = any(x.v_mps > 0.01 for x in xs)
+        still["moved"] = still["moved"] or moving
+        if still["moved"] and not moving:
+            still["since"] = t_prev if still["since"] is None else still["since"]
+            return t_prev - still["since"] >= sc.settle_s
+        still["since"] = None
+        return False
+
     n_steps = int(round(sc.max_time_s / dt))
-    for k in range(n_steps):
-        t = k * dt
-        cmds = []
-        for i in range(n_trains):
-            pl = plants[i]
-            ego = TrainStateMsg(time_s=t, position_m=pl.x.s_m, speed_mps=pl.x.v_mps, accel_mps2=pl.x.accel_mps2, force_n=pl.x.force_n)
-            if i == 0:
-                obs = Observation(time_s=t, step_s=dt, ego_id=ids[0], ego=ego, params=params, profile=route, convoy=tuple(ids),
-                                  target_speed_mps=sc.objective_speed_mps)
-                if emergency:
-                    braking = braking or pl.x.s_m + _emergency_distance(pl.x.v_mps, cfg.a_leader_mps2, params, dt) >= stop_m
-                    if braking:
-                        cmds.append(_emergency_command(pl, params, cfg.a_leader_mps2, t, dt, cfg.horizon_steps))
-                        continue
-            else:
-                pred = plants[i - 1]
-                msg = _message(ids[i - 1], t, pred, last_cmd[i - 1], params.length_m)
-                obs = Observation(time_s=t, step_s=dt, ego_id=ids[i], ego=ego, params=params, profile=route, received={ids[i - 1]: msg},
-                                  predecessor=ids[i - 1], convoy=tuple(ids), sensed_gap_m=pred.x.s_m - params.length_m - pl.x.s_m,
-                                  sensed_speed_mps=pred.x.v_mps, target_speed_mps=sc.objective_speed_mps)
-            cmds.append(ctrls[i].make_step(obs))
-        row = {"time_s": t}
-        for i in range(n_trains):
-            x = plants[i].x
-            row[f"s{i}_m"] = x.s_m - sc.origin_m
-            row[f"v{i}_mps"] = x.v_mps
-            row[f"F{i}_n"] = x.force_n
-            row[f"u{i}_n"] = cmds[i].force_n
-            row[f"infeasible{i}"] = cmds[i].infeasible
-            if i > 0:
-                row[f"gap{i}_m"] = plants[i - 1].x.s_m - params.length_m - x.s_m
-        rows.append(row)
-        for i in range(n_trains):
-            plants[i].step(cmds[i].force_n, dt)
-        last_cmd = cmds
-        moving = any(p.x.v_mps > 0.01 for p in plants)
-        moved = moved or moving
-        if moved and not moving:
-            stopped_since = t if stopped_since is None else stopped_since
-            if t - stopped_since >= sc.settle_s:
-                break
-        else:
-            stopped_since = None
-    traj = pd.DataFrame(rows)
+    # the paper's plant has one brake: the leader's emergency command is its (planned) braking force
+    run = run_convoy(trains, route, dt, (n_steps - 1) * dt, apply_lag=True, apply_jerk=sc.plant_jerk, emergency_brake=False, stop_when=settled)
+    traj = _wide(run.frame, ids, sc.origin_m)
     metrics = _metrics(traj, n_trains, strategy, sc)
     metrics["horizon"] = cfg.horizon_steps
     metrics["a_follower_mps2"] = cfg.a_follower_mps2
+    ctrls = [leader] + [st.nominal for st in stacks]
     times = {ids[i]: np.array(ctrls[i].stats.solve_times_s) for i in range(n_trains)}
     metrics["infeasible_steps"] = int(sum(c.stats.infeasible for c in ctrls))
     fol = np.concatenate([times[i] for i in ids[1:]]) if n_trains > 1 else times[ids[0]]
@@ -281,23 +261,35 @@ def simulate(strategy: str = "SH", n_trains: int = 2, horizon: int | None = None
     return RunResult(metrics=metrics, trajectory=traj, solve_times_s=times)
 
 
+def _wide(frame: pd.DataFrame, ids: list[str], origin_m: float) -> pd.DataFrame:
+    """One row per step: time_s, s{i}_m (from the leader's start), v{i}_mps, F{i}_n (applied force),
+    u{i}_n (command), infeasible{i}, gap{i}_m (followers)."""
+    out = pd.DataFrame({"time_s": frame.loc[frame.train == ids[0], "time_s"].to_numpy()})
+    for i, tid in enumerate(ids):
+        f = frame[frame.train == tid]
+        out[f"s{i}_m"] = f.position_m.to_numpy() - origin_m
+        out[f"v{i}_mps"] = f.speed_mps.to_numpy()
+        out[f"F{i}_n"] = f.force_n.to_numpy()
+        out[f"u{i}_n"] = f.force_cmd_n.to_numpy()
+        out[f"infeasible{i}"] = f.infeasible.to_numpy()
+        if i > 0:
+            out[f"gap{i}_m"] = f.gap_m.to_numpy()
+    return out
+
+
 def _emergency_distance(v: float, a: float, params: TrainParams, dt: float) -> float:
     """Distance to stop from v braking at a after the force lag (≈ v·τ/… + v²/(2a)) plus one step."""
     return v * v / (2.0 * a) + v * (params.traction_lag_s + dt)
 
 
-def _emergency_command(plant: TrainPlant, params: TrainParams, a: float, t: float, dt: float, horizon: int):
+def _emergency_command(s: float, v: float, params: TrainParams, a: float, t: float, dt: float, horizon: int) -> Command:
     """Emergency brake: the force giving a total deceleration a (resistance included); the plan
     communicated with it is the constant-deceleration stop (what the leader will do)."""
-    from vcsumo.control.base import Command
-    from vcsumo.dynamics import running_resistance
-
-    x = plant.x
-    u = -(params.mass_kg * a - running_resistance(params, x.v_mps)) if x.v_mps > 0 else -params.mass_kg * a
+    u = -(params.mass_kg * a - running_resistance(params, v)) if v > 0 else -params.mass_kg * a
     k = np.arange(horizon + 1)
-    tt = np.minimum(k * dt, x.v_mps / a)
-    return Command(force_n=float(u), mode="emergency", emergency=True, plan_times_s=t + k * dt, plan_positions_m=x.s_m + x.v_mps * tt - 0.5 * a * tt * tt,
-                   plan_speeds_mps=np.maximum(x.v_mps - a * k * dt, 0.0), plan_forces_n=np.full(horizon + 1, u))
+    tt = np.minimum(k * dt, v / a)
+    return Command(force_n=float(u), mode="emergency", emergency=True, plan_times_s=t + k * dt, plan_positions_m=s + v * tt - 0.5 * a * tt * tt,
+                   plan_speeds_mps=np.maximum(v - a * k * dt, 0.0), plan_forces_n=np.full(horizon + 1, u))
 
 
 def _stop_time(t: np.ndarray, v: np.ndarray, after: float, v_stop: float = 0.01) -> float:

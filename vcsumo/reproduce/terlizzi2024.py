@@ -41,13 +41,16 @@ import numpy as np
 import pandas as pd
 
 from vcsumo.config import load_model
-from vcsumo.control.base import Message, Observation, TrainStateMsg
+from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.cbf import CBFConfig, CBFSupervisor
 from vcsumo.control.channel import Channel, ChannelConfig, Degradation, Window
 from vcsumo.control.cruise import CondensedMPC, CruiseConfig, PositionReferenceGenerator, SwitchedCruiseController, Weights
+from vcsumo.control.params import resolve_params
 from vcsumo.control.proxies import GradeWindow, RobustProxies, robust_plan, sample_params
-from vcsumo.line import load_line, project_root
-from vcsumo.plant import PlantState, TrainPlant
+from vcsumo.control.registry import StackContext, build_follower_stack
+from vcsumo.line import load_line
+from vcsumo.plant import PlantState
+from vcsumo.sim.offline import OfflineStep, OfflineTrain, run_convoy
 from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.topology import build_topology
@@ -105,9 +108,8 @@ class OS2Spec:
 
 
 def load_configs(cbf_path: str | Path | None = None, cruise_path: str | Path | None = None) -> tuple[CBFConfig, CruiseConfig]:
-    root = project_root() / "controllers"
-    cbf = load_model(CBFConfig, cbf_path or root / "cbf.yaml")
-    cruise = load_model(CruiseConfig, cruise_path or root / "cruise_terlizzi2024.yaml")
+    cbf = load_model(CBFConfig, resolve_params(cbf_path, "cbf", "cbf_path"))
+    cruise = load_model(CruiseConfig, resolve_params(cruise_path, "cruise_terlizzi2024", "cruise_path"))
     return cbf, cruise
 
 
@@ -165,23 +167,27 @@ class LeaderController:
         k = min(int((t - sol.times_s[0]) / self.mpc.dt + 1e-9), len(sol.forces_n) - 1)
         return float(sol.forces_n[max(k, 0)])
 
-    def message(self, t: float, s: float, v: float, a: float, f: float) -> Message:
+    def broadcast_plan(self, t: float, s: float, v: float) -> tuple:
+        """At every packet: plan with the MPC, and the robust planned trajectory sent with the packet
+        (times, positions, speeds, forces) — the offline loop's ``plan`` hook."""
+        self.plan(t, s, v)
         sol = self.sol
         n = int(round((sol.times_s[-1] - t) / self.dt))
         tt = t + self.dt * np.arange(n)
         idx = np.minimum(((tt - sol.times_s[0]) / self.mpc.dt + 1e-9).astype(int), len(sol.forces_n) - 1)
         forces = sol.forces_n[idx]
         pt, ps, pv = robust_plan(self.proxies, s, v, forces, self.dt, t, every=max(1, int(round(0.5 / self.dt))))
-        return Message(
-            sender=LEADER,
-            sent_time_s=t,
-            state=TrainStateMsg(time_s=t, position_m=s, speed_mps=v, accel_mps2=a, force_n=f),
-            length_m=self.length_m,
-            plan_times_s=pt,
-            plan_positions_m=ps,
-            plan_speeds_mps=pv,
-            plan_forces_n=np.interp(pt, sol.times_s[:-1], sol.forces_n),
-        )
+        return pt, ps, pv, np.interp(pt, sol.times_s[:-1], sol.forces_n)
+
+    def message(self, t: float, s: float, v: float, a: float, f: float) -> Message:
+        """The packet at time t: state and robust planned trajectory (plans first)."""
+        pt, ps, pv, pf = self.broadcast_plan(t, s, v)
+        return Message(sender=LEADER, sent_time_s=t, state=TrainStateMsg(time_s=t, position_m=s, speed_mps=v, accel_mps2=a, force_n=f),
+                       length_m=self.length_m, plan_times_s=pt, plan_positions_m=ps, plan_speeds_mps=pv, plan_forces_n=pf)
+
+    def make_step(self, obs: Observation) -> Command:
+        """The leader's force (the Controller interface; the plan is made at each packet)."""
+        return Command(self.force(obs.time_s, obs.ego.speed_mps), mode="leader")
 
 
 @dataclass
@@ -212,55 +218,33 @@ def _simulate(
     rng = np.random.default_rng(seed)
     p_lead_true = sample_params(lead_stock, rng)
     p_fol_true = sample_params(fol_stock, rng)
-    plant_l = TrainPlant(p_lead_true, PlantState(s_leader0, v0), profile)
-    plant_f = TrainPlant(p_fol_true, PlantState(s_follower0, v0), profile)
     channel = Channel(channel_cfg)
     leader = LeaderController(lead_stock, cruise_cfg, profile, schedule, dt_s)
-    sup = CBFSupervisor(lead_stock, fol_stock, cbf, leader_id=LEADER)
-    cruise = SwitchedCruiseController(lead_stock, fol_stock, cruise_cfg, cbf, leader_id=LEADER)
-    nominal_f = fol_stock.params()
-    L = lead_stock.length_m
-
-    n = int(round(duration_s / dt_s))
+    # the paper's architecture: Algorithm 1-3 around Algorithm 4-5, no separation guard
+    stack = build_follower_stack("cbf-cruise", StackContext(ego=fol_stock, predecessor=lead_stock, step_s=dt_s, profile=profile, params=cruise_cfg,
+                                                            supervisor_params=cbf, guard=False, ego_id=FOLLOWER, predecessor_id=LEADER))
+    sup, cruise = stack.supervisor, stack.nominal
+    timed = _Timed(stack)
+    trains = [
+        OfflineTrain(LEADER, p_lead_true, PlantState(s_leader0, v0), leader, nominal=lead_stock.params(), plan=leader.broadcast_plan),
+        OfflineTrain(FOLLOWER, p_fol_true, PlantState(s_follower0, v0), timed, nominal=fol_stock.params(), sends=False),
+    ]
     rows = []
-    u_l = 0.0
-    cpu_ctrl = []
     last_rx = -math.inf
-    for k in range(n + 1):
-        t = k * dt_s
-        xl, xf = plant_l.x, plant_f.x
-        # leader: plan and send every packet period
-        if channel.due(LEADER, t):
-            leader.plan(t, xl.s_m, xl.v_mps)
-            channel.send(leader.message(t, xl.s_m, xl.v_mps, xl.accel_mps2, xl.force_n), [FOLLOWER], t)
-        u_l = leader.force(t, xl.v_mps)
-        # follower
-        received = channel.deliver(FOLLOWER, t)
-        obs = Observation(
-            time_s=t,
-            step_s=dt_s,
-            ego_id=FOLLOWER,
-            ego=TrainStateMsg(time_s=t, position_m=xf.s_m, speed_mps=xf.v_mps, accel_mps2=xf.accel_mps2, force_n=xf.force_n),
-            params=nominal_f,
-            profile=profile,
-            received=received,
-            predecessor=LEADER,
-            convoy=(LEADER, FOLLOWER),
-            sensed_gap_m=xl.s_m - L - xf.s_m,
-            sensed_speed_mps=xl.v_mps,
-        )
-        c0 = time.perf_counter()
-        nom = cruise.make_step(obs)
-        cmd = sup.filter(obs, nom)
-        cpu_ctrl.append(time.perf_counter() - c0)
-        msg = received.get(LEADER)
+
+    def record(step: OfflineStep) -> None:
+        nonlocal last_rx
+        xl, xf = step.states
+        cmd = step.commands[1]
+        nom = stack.stage.last_nominal
+        msg = step.observations[1].received.get(LEADER)
         rx = msg is not None and msg.received_time_s > last_rx
         if rx:
             last_rx = msg.received_time_s
-        if k % record_every == 0 or rx or cmd.emergency:
+        if step.k % record_every == 0 or rx or cmd.emergency:
             rows.append(
                 {
-                    "time_s": t,
+                    "time_s": step.time_s,
                     "leader_position_m": xl.s_m,
                     "leader_speed_mps": xl.v_mps,
                     "leader_force_n": xl.force_n,
@@ -283,10 +267,12 @@ def _simulate(
                     "packet_delay_s": (msg.received_time_s - msg.sent_time_s) if rx else math.nan,
                 }
             )
-        if k == n:
-            break
-        plant_l.step(u_l, dt_s)
-        plant_f.step(cmd.force_n, dt_s)
+
+    L = lead_stock.length_m
+    n = int(round(duration_s / dt_s))
+    # the paper's plant has one brake (K_E^F demands the strongest brake of the box, eq. 4)
+    run_convoy(trains, profile, dt_s, n * dt_s, channel=channel, record_every=0, emergency_brake=False, on_step=record)
+    cpu_ctrl = timed.seconds
     df = pd.DataFrame(rows)
     cpu = np.array(cpu_ctrl) * 1e3
     st = sup.stats
@@ -320,6 +306,24 @@ def _simulate(
     for m, c in cruise.mode_counts.items():
         summary[f"share_{m}"] = round(c / max(1, sum(cruise.mode_counts.values())), 4)
     return RunResult(summary, df, sup, cruise)
+
+
+class _Timed:
+    """The follower's stack with the CPU time of each step (``seconds``)."""
+
+    def __init__(self, stack):
+        self.stack = stack
+        self.seconds: list[float] = []
+
+    def make_step(self, obs: Observation) -> Command:
+        c0 = time.perf_counter()
+        cmd = self.stack.make_step(obs)
+        self.seconds.append(time.perf_counter() - c0)
+        return cmd
+
+    @property
+    def events(self) -> list:
+        return self.stack.events
 
 
 # -------------------------------------------------------------------------------------------

@@ -40,7 +40,7 @@ from typing import Callable, Mapping
 
 from vcsumo.dynamics import acceleration, discrete_approach_speed
 from vcsumo.sim.loop import Snapshot
-from vcsumo.sim.vc_driver import guaranteed_decel, guard_speed
+from vcsumo.control.guard import guaranteed_decel, guard_speed
 from vcsumo.timetable import PlannedTrain
 
 SIGNAL_MARGIN_M = 2.0

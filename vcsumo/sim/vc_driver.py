@@ -9,27 +9,21 @@
 2. builds, for every coupled follower, an :class:`~vcsumo.control.base.Observation` with what the
    channel delivered mapped into the follower's own route frame, the on-board sensed gap and
    speed of the predecessor (once it is the train SUMO sees ahead), and its route profile;
-3. asks the follower's controller for a force (MPC, consensus, Terlizzi's switched cruise
-   controller) and passes it through the CBF supervisor when the controller name starts with
-   ``cbf-`` — both inside the follower's :class:`~vcsumo.control.faults.FaultStage`: a controller
-   or supervisor that raises, returns a non-finite force or reports an infeasible problem without a
-   usable fallback, or an observation with a non-finite state, gives the follower the emergency
-   brake until data and controller have been valid for ``fault_recovery_s`` (events in
-   ``faults.csv``, counted as ``fault_events`` / ``fault_emergency_steps`` in the summary);
-4. turns the force into the speed the train reaches after one step under eq. 1b (the shared train
-   model, the force bounded below by the emergency brake), caps it with the relative-braking guard
-   (:func:`guard_speed`) — the last filter stage, applied to every controller — and the loop sends
-   it to SUMO with speed mode 26 (traction limit and red signals still enforced by SUMO; SUMO's
-   own braking-distance rule and service-brake cap off).
-
-The guard is the nominal relative-braking-distance condition (Felez et al. eq. 12m, Wu et al. eq.
-3.1): after one step the follower must be able to stop at its emergency deceleration (configurable:
-``controllers/guard.yaml``) at least d_min behind the point where the predecessor would stop under
-emergency braking started when its latest information was taken (sensed: now; communicated: at
-the message's time stamp).  The CBF
-supervisor (``cbf-`` controllers) is the robust version of the same idea, with the parameter
-uncertainty of Terlizzi et al. eq. 7; the guard only catches what a nominal controller would let
-through.  Its interventions are counted.
+3. steps the follower's stack, built by name in :mod:`vcsumo.control.registry` — the same stack
+   the offline loop and the safety campaign run: the nominal controller (MPC, consensus,
+   Terlizzi's switched cruise controller), the CBF supervisor for ``cbf-`` names, the separation
+   guard (:class:`~vcsumo.control.guard.SeparationGuard`: the largest force whose one-step speed
+   keeps the relative braking distance, on the best information on board; its interventions are
+   counted), all inside the follower's :class:`~vcsumo.control.faults.FaultStage`: a stage that
+   raises, returns a non-finite force or reports an infeasible problem without a usable fallback,
+   or an observation with a non-finite state, gives the follower the emergency brake until data
+   and controller have been valid for ``fault_recovery_s`` (events in ``faults.csv``, counted as
+   ``fault_events`` / ``fault_emergency_steps`` in the summary);
+4. turns the final force into the speed the train reaches after one step under eq. 1b (the shared
+   train model, the force bounded below by the emergency brake), which the loop sends to SUMO with
+   speed mode 26 (traction limit and red signals still enforced by SUMO; SUMO's own
+   braking-distance rule and service-brake cap off).  Approaching its own stop the follower's
+   guard keeps to the service brake (``Observation.next_stop_m``), so SUMO can take over there.
 
 Convoy leaders and trains outside convoys stay with SUMO (moving block).  A follower is coupled
 while its predecessor is on the part of its route they share (through a merge, the gap is the
@@ -43,9 +37,11 @@ below 30 km/h (SUMO's on-sight moving-block rule lets it close up behind the sta
 the moving-block distance to its predecessor is already kept; it is coupled again once it has
 left the stop.
 
-Controller names: ``mpc``, ``cbc``, ``cbf-mpc``, ``cbf-cbc``, ``cbf-cruise``; a parameter file can
-be named after a colon, e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part always reads
-``controllers/cbf.yaml`` unless ``cbf_config`` is given).
+Controller names are the registry's (:func:`~vcsumo.control.registry.controller_names`: ``mpc``,
+``cbc``, ``cbf-mpc``, ``cbf-cbc``, ``cbf-cruise``); a parameter file can be named after a colon,
+e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part reads ``controllers/cbf.yaml`` unless
+``cbf_config`` is given).  Predicted trajectories are broadcast only when the controller reads them
+(its registry entry's ``uses_plans``).
 """
 
 from __future__ import annotations
@@ -59,64 +55,23 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from vcsumo.config import load_model
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
-from vcsumo.control.faults import FAULT_KINDS, FaultStage, faults_frame
-from pydantic import Field
-
-from vcsumo.config import StrictModel, load_model
+from vcsumo.control.faults import FAULT_KINDS, faults_frame
+from vcsumo.control.guard import GuardConfig, load_guard
+from vcsumo.control.params import resolve_params
+from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
+from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
-from vcsumo.errors import InputError, VcsumoError
-from vcsumo.line import project_root
-from vcsumo.units import G
+from vcsumo.errors import InputError
 from vcsumo.running_time import unhindered_run
 from vcsumo.sim.loop import Snapshot
 from vcsumo.timetable import PlannedTrain, TimetableFile
 
-VC_CONTROLLERS = ("mpc", "cbc", "cbf-mpc", "cbf-cbc", "cbf-cruise")
-
-
-def controllers_dir() -> Path:
-    return project_root() / "controllers"
-
-
-def _param_path(spec: str | None, default: str) -> Path:
-    name = spec or default
-    p = Path(name)
-    if p.suffix in (".yaml", ".yml"):
-        if not p.is_file():
-            raise InputError(p, None, "controller parameter file not found")
-        return p
-    cand = controllers_dir() / f"{name}.yaml"
-    if not cand.is_file():
-        avail = ", ".join(sorted(x.stem for x in controllers_dir().glob("*.yaml")))
-        raise InputError(None, "--controller", f"unknown controller parameter set '{name}' (available: {avail})")
-    return cand
-
-
-def parse_controller(spec: str) -> tuple[str, str | None]:
-    """'cbf-cbc:cbc_plf' -> ('cbf-cbc', 'cbc_plf')."""
-    name, _, params = spec.partition(":")
-    if name not in VC_CONTROLLERS:
-        raise InputError(None, "--controller", f"unknown controller '{name}' (choose from {', '.join(VC_CONTROLLERS)})")
-    return name, params or None
-
-
-class GuardConfig(StrictModel):
-    """Decelerations of the relative-braking guard (the last filter stage of every VC controller)."""
-
-    leader_decel: str = Field(default="emergency", pattern="^(emergency|service)$", description="Predecessor's worst case: its emergency or service deceleration")
-    follower_decel: str = Field(default="emergency", pattern="^(emergency|service)$", description="Deceleration the follower's guard may rely on (its own emergency or service brake)")
-
-
-def load_guard(spec: str | Path | None) -> GuardConfig:
-    """Guard settings: a YAML file or a name in controllers/ (default ``guard``)."""
-    return load_model(GuardConfig, _param_path(str(spec) if spec else None, "guard"))
-
-
-def load_channel(spec: str | Path | None) -> ChannelConfig:
+def load_channel(spec: str | Path | None, field: str | None = "--channel", base_dir: str | Path | None = None) -> ChannelConfig:
     """Channel settings: a YAML file, a name in controllers/ (default ``channel``)."""
-    return load_model(ChannelConfig, _param_path(str(spec) if spec else None, "channel"))
+    return load_model(ChannelConfig, resolve_params(spec, "channel", field, base_dir, kind="channel"))
 
 
 # -------------------------------------------------------------------------------------------
@@ -183,73 +138,7 @@ def frame(a: PlannedTrain, b: PlannedTrain) -> Frame | None:
 
 
 # -------------------------------------------------------------------------------------------
-# Controllers
-
-
-def _make_controller(name: str, params_spec: str | None, pred: PlannedTrain, ego: PlannedTrain, step_s: float, cbf_config: str | None):
-    """(nominal controller, supervisor or None, d_min) for one follower."""
-    base = name.removeprefix("cbf-")
-    supervisor = None
-    if base == "cbc":
-        from vcsumo.control.consensus import ConsensusController, load_cbc_params
-
-        prm = load_cbc_params(_param_path(params_spec, "cbc"))
-        nominal = ConsensusController(prm)
-        d_min = prm.gap.d_min_m
-    elif base == "mpc":
-        from vcsumo.control.mpc import FollowerMPC, load_mpc_settings
-
-        settings = load_mpc_settings(_param_path(params_spec, "mpc"))
-        if abs(settings.step_s - step_s) > 1e-9:
-            settings = settings.model_copy(update={"step_s": step_s})
-        nominal = FollowerMPC(ego.stock.params(), settings, route_end_m=ego.profile.length_m)
-        d_min = settings.d_min_m
-    elif base == "cruise":
-        from vcsumo.control.cbf import load_cbf_config
-        from vcsumo.control.cruise import SwitchedCruiseController, load_cruise_config
-
-        cbf_cfg = load_cbf_config(_param_path(cbf_config, "cbf"))
-        nominal = SwitchedCruiseController(pred.stock, ego.stock, load_cruise_config(_param_path(params_spec, "cruise_terlizzi2024")), cbf_cfg, leader_id=pred.id)
-        d_min = cbf_cfg.safety_distance_m
-    else:  # pragma: no cover - names are checked by parse_controller
-        raise VcsumoError(f"unknown controller {name}")
-    if name.startswith("cbf-"):
-        from vcsumo.control.cbf import CBFSupervisor, load_cbf_config
-
-        cfg = load_cbf_config(_param_path(cbf_config, "cbf"))
-        supervisor = CBFSupervisor(pred.stock, ego.stock, cfg, leader_id=pred.id)
-        d_min = max(d_min, cfg.safety_distance_m)
-    return nominal, supervisor, d_min
-
-
-def guard_speed(s_f_m: float, b_f_mps2: float, dt_s: float, s_l_m: float, v_l_mps: float, leader_length_m: float, a_l_mps2: float, d_min_m: float) -> float:
-    """Highest follower speed for the next step that keeps the relative braking distance, m/s.
-
-    Worst case for the predecessor: braking at ``a_l`` from the state (s_l, v_l) it was last known
-    in — sensed now or communicated earlier; the stopping point s_l + v_l²/(2·a_l) is the same
-    whenever after that moment the braking started, so old information is still a valid bound.
-    The follower runs one step (Δt) at the commanded speed v and then brakes at ``b_f`` with
-    SUMO's semi-implicit Euler update, which covers v²/(2·b_f) + ½·v·Δt:
-    1.5·v·Δt + v²/(2·b_f) ≤ s_l + v_l²/(2·a_l) − L_l − d_min − s_f.
-    """
-    stop_l = s_l_m + v_l_mps * v_l_mps / (2.0 * a_l_mps2)
-    room = stop_l - leader_length_m - d_min_m - s_f_m
-    if room <= 0.0:
-        return 0.0
-    k = 1.5 * dt_s
-    return b_f_mps2 * (-k + math.sqrt(k * k + 2.0 * room / b_f_mps2))
-
-
-def guaranteed_decel(p, v_mps: float, decel_mps2: float, grad_low: float) -> float:
-    """Deceleration a train certainly reaches braking with force M·decel (eq. 1b): resistance at
-    least A, gradient at worst the steepest downhill ahead, m/s²."""
-    return (p.mass_kg * decel_mps2 + p.davis_a_n + p.mass_kg * G * min(grad_low, 0.0)) / (p.mass_kg * p.rotating_mass_factor)
-
-
-def strongest_decel(p, v_mps: float, decel_mps2: float, grad_high: float, tunnel_factor: float = 1.0) -> float:
-    """Hardest deceleration a train may show braking with force M·decel at speed v (eq. 1b):
-    its resistance at v and the steepest uphill ahead help it, m/s²."""
-    return (p.mass_kg * decel_mps2 + float(running_resistance(p, v_mps, tunnel_factor)) + p.mass_kg * G * max(grad_high, 0.0)) / p.mass_kg
+# The convoy leader's plan
 
 
 def leader_plan(t: PlannedTrain, s_m: float, v_mps: float, now_s: float, horizon_s: float, dt: float, stops_after: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -274,8 +163,7 @@ class _Follower:
     plan: PlannedTrain
     pred: PlannedTrain
     convoy: tuple[str, ...]
-    nominal: object
-    supervisor: object | None
+    stack: FollowerStack
     d_min: float
     frames: dict[str, Frame]
     coupled: bool = False
@@ -286,7 +174,6 @@ class _Follower:
     emergency_episodes: int = 0
     in_emergency: bool = False
     interventions: int = 0
-    guard_interventions: int = 0
     solve_ms: list[float] = field(default_factory=list)
     modes: dict[str, int] = field(default_factory=dict)
     coupled_since_s: float = math.nan
@@ -294,11 +181,18 @@ class _Follower:
     stops_m: list[float] = field(default_factory=list)
     platforms_m: list[float] = field(default_factory=list)
     params: object = None
-    pred_params: object = None
     next_stop: int = 0
     stop_handovers: int = 0
     at_stop: bool = False
-    stage: FaultStage | None = None
+
+    @property
+    def stage(self):
+        """The stack's fault stage (controller → supervisor → guard, with fault handling)."""
+        return self.stack.stage
+
+    @property
+    def guard_interventions(self) -> int:
+        return self.stack.guard_interventions
 
 
 class VCDriver:
@@ -313,7 +207,7 @@ class VCDriver:
         self.plan_horizon_s = plan_horizon_s
         self.plan_step_s = plan_step_s
         # predicted trajectories are sent only to controllers that use them (SH predictor, RLP)
-        self.send_plans = self.name != "cbc"
+        self.send_plans = controller_spec(controller).uses_plans
         self._plans: dict[str, tuple] = {}
         self.guard = guard or GuardConfig()
         self.trains: dict[str, PlannedTrain] = {}
@@ -330,7 +224,9 @@ class VCDriver:
             for k in range(1, len(members)):
                 ego, pred = members[k], members[k - 1]
                 ego.shares_platforms = True
-                nominal, sup, d_min = _make_controller(self.name, self.params_spec, pred, ego, step_s, cbf_config)
+                stack = build_follower_stack(controller, StackContext(
+                    ego=ego.stock, predecessor=pred.stock, step_s=step_s, profile=ego.profile, supervisor_params=cbf_config, guard=self.guard,
+                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s))
                 frames = {}
                 for other in members:
                     if other.id != ego.id:
@@ -345,9 +241,7 @@ class VCDriver:
                 elif ego.end_pos_m is not None and ego.stop_at_end:
                     stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
                     plats.append(0.0)
-                self.followers[ego.id] = _Follower(ego, pred, ids, nominal, sup, d_min, frames, stops_m=stops, platforms_m=plats,
-                                                   params=ego.stock.params(), pred_params=pred.stock.params(),
-                                                   stage=FaultStage(nominal, ego.stock.params(), sup, ego.id, fault_recovery_s))
+                self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params())
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         arrange_convoy_departures(convoys, {fid: f.d_min + 2.0 for fid, f in self.followers.items()})
 
@@ -459,9 +353,12 @@ class VCDriver:
                 ego=TrainStateMsg(t, st.s_m, st.speed_mps, st.accel_mps2, f.last_cmd.force_n if f.last_cmd else 0.0),
                 params=f.params, profile=f.plan.profile, received=received, predecessor=f.pred.id, convoy=f.convoy,
                 sensed_gap_m=sensed_gap, sensed_speed_mps=sensed_speed,
+                # approaching its own stop the follower keeps to service braking, so that SUMO (which
+                # serves the stop) can always take over; the stop target is an obstacle too
+                next_stop_m=stop_target,
             )
             t0 = time.perf_counter()
-            cmd = f.stage.make_step(obs)  # controller -> CBF supervisor, with fault handling
+            cmd = f.stack.make_step(obs)  # controller -> supervisor -> separation guard, with fault handling
             f.interventions = f.stage.supervisor_interventions
             f.solve_ms.append(1000.0 * (time.perf_counter() - t0))
             f.last_cmd = cmd
@@ -473,43 +370,18 @@ class VCDriver:
                 if not f.in_emergency:
                     f.emergency_episodes += 1
             f.in_emergency = cmd.emergency
+            # the force -> the speed after one step (eq. 1b); the follower brakes at most with its
+            # emergency braking force (SUMO's cap is off for it)
             p = f.params
-            force = float(cmd.force_n)
             grad = f.plan.profile.mean_gradient(st.s_m, p.length_m)
             tf = f.plan.profile.tunnel_factor_at(st.s_m)
-            # the follower brakes at most with its emergency braking force (SUMO's cap is off for it)
             f_min = -p.mass_kg * p.emergency_brake_decel_mps2
             v_floor = max(0.0, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, f_min, grad, tf)))
-            v_next = max(v_floor, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, force, grad, tf)))
-            # last filter stage: the relative-braking guard, on the best information on board
-            if sensed_gap is not None and sensed_speed is not None:
-                s_l, v_l = st.s_m + sensed_gap + f.pred.stock.length_m, sensed_speed
-            else:
-                m = received.get(f.pred.id)
-                # no (finite) information about the predecessor: it may be standing at the follower's front
-                known = m is not None and math.isfinite(m.state.position_m) and math.isfinite(m.state.speed_mps)
-                s_l, v_l = (m.state.position_m, m.state.speed_mps) if known else (st.s_m, 0.0)
-            ps = f.pred.stock
-            pp = f.pred_params
-            # approaching its own stop the follower keeps to service braking, so that SUMO (which
-            # serves the stop) can always take over; the stop target is an obstacle too
-            near_stop = stop_target is not None
-            dec_f = p.emergency_brake_decel_mps2 if (self.guard.follower_decel == "emergency" and not near_stop) else p.service_brake_decel_mps2
-            dec_l = ps.emergency_brake_decel_mps2 if self.guard.leader_decel == "emergency" else ps.service_brake_decel_mps2
-            prof = f.plan.profile
-            v = st.speed_mps
-            g_low, _ = prof.gradient_range(st.s_m - p.length_m, st.s_m + v * v / (2 * dec_f) + 2 * v * self.step_s + 10.0)
-            b_f = guaranteed_decel(p, v, dec_f, g_low)
-            _, g_high = prof.gradient_range(s_l - pp.length_m, s_l + v_l * v_l / (2 * dec_l) + 10.0)
-            a_l = strongest_decel(pp, v_l, dec_l, g_high, 1.5)
-            v_guard = guard_speed(st.s_m, b_f, self.step_s, s_l, v_l, ps.length_m, a_l, f.d_min)
-            if near_stop:
-                b_serv = guaranteed_decel(p, v, p.service_brake_decel_mps2, g_low)
-                v_guard = min(v_guard, guard_speed(st.s_m, b_serv, self.step_s, stop_target, 0.0, 0.0, 1.0, 1.0))
-            v_nominal = v_next
-            if v_next > v_guard + 1e-9:
-                f.guard_interventions += 1
-                v_next = max(v_guard, v_floor)
+            v_next = max(v_floor, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, float(cmd.force_n), grad, tf)))
+            guard = f.stack.guard
+            f_in = guard.last_force_in_n if guard is not None and math.isfinite(guard.last_force_in_n) else float(cmd.force_n)
+            v_nominal = max(v_floor, st.speed_mps + self.step_s * float(acceleration(p, st.speed_mps, f_in, grad, tf)))
+            v_guard = guard.last_speed_mps if guard is not None else math.nan
             commands[fid] = v_next
             if record:
                 gap_comm = None

@@ -211,7 +211,7 @@ def rear_lag(traces: dict, lead: PlannedTrain, last: PlannedTrain, full_length_m
 
 def _initial_gap(stock: RollingStock, v0: float, step_s: float) -> float:
     """Starting gap inside a convoy: the relative-braking gap at the release speed (guard formula) + 20 m."""
-    from vcsumo.sim.vc_driver import guaranteed_decel, strongest_decel
+    from vcsumo.control.guard import guaranteed_decel, strongest_decel
 
     p = stock.params()
     b_f = guaranteed_decel(p, v0, stock.emergency_brake_decel_mps2, -0.02)
@@ -399,7 +399,7 @@ def run_capacity_study(
     ``workers`` > 1 runs cases in that many spawned processes (each with its own SUMO); a case that
     fails becomes a row with its ``error`` and the study goes on.
     """
-    from vcsumo.sim.vc_driver import parse_controller
+    from vcsumo.control.registry import parse_controller
 
     for c in controllers:
         parse_controller(c)

@@ -2,7 +2,7 @@
 
 ``vcsumo study safety`` draws ``scenarios`` seeded scenarios (:func:`draw_scenario`) and runs each
 of them once per controller (``mpc``, ``cbc``, ``cbf-mpc``, ``cbf-cbc`` by default) in the offline
-closed loop (no SUMO): every train is a :class:`~vcsumo.plant.TrainPlant` — the train model
+closed loop (no SUMO, :mod:`vcsumo.sim.offline`): every train is a :class:`~vcsumo.plant.TrainPlant` — the train model
 shared with the controllers and the supervisor (Felez eq. 1, force lag, jerk limit) — integrated
 with its *true* parameters drawn inside the rolling stock's uncertainty box or at one of its
 corners (Terlizzi eq. 7), on the line's real gradient, tunnel and speed-limit profile.
@@ -23,13 +23,16 @@ controller and does not depend on how many scenarios are run):
     cleared the junction;
 
 * the leader's cruise speed (30–100 % of the line speed there) and the time of its **emergency
-  brake** (full brake of its true parameters, held to a stop): 10–120 s (cruise), 5–120 s
-  (forming), 0–120 s (merge), around its arrival at the turnout (split);
+  brake** (its emergency brake at the top of its box — the separation model's range, nominal
+  +10 % in the default assumption set: ETR1000 1.32 m/s² — built up through its lag and jerk
+  limit, held to a stop; :func:`true_params`): 10–120 s (cruise), 5–120 s (forming), 0–120 s
+  (merge), around its arrival at the turnout (split);
 * 1..``followers_max`` followers;
 * the channel (Terlizzi §VII): constant delay 0–``delay_max_s`` + exponential extra delay of mean
   0–``mean_extra_max_s``, independent loss 0–``loss_max``, and with probability
   ``outage_probability`` an outage of 1–``outage_max_s`` s (longer outages trip T^max, eq. 18);
-* every train's true parameters (at a box corner with probability ``corner_probability``);
+* every train's true parameters (at a box corner with probability ``corner_probability``; its
+  emergency deceleration scaled like its service brake);
 * the convoy has been communicating before the scenario starts: every follower knows its
   predecessor's state at t = 0 (so Algorithm 1 starts at once and the T^max rule of eq. 18 runs
   from the start; a follower that had never heard of its predecessor would drive on its nominal
@@ -49,9 +52,12 @@ time lost: how much later than an unhindered run from its initial state each fol
 leader's emergency brake (mean over followers) — what supervision and communication faults cost
 in normal running.
 
-Unsupervised controllers run without any safety filter (in the SUMO loop every controller also
-has the relative-braking guard of :mod:`vcsumo.sim.vc_driver`); their violation rates are the baseline the
-CBF supervisor is measured against.
+Every follower runs the stack the SUMO loop runs, built by the controller registry
+(:mod:`vcsumo.control.registry`): nominal controller → CBF supervisor (``cbf-`` names) →
+separation guard (:mod:`vcsumo.control.guard`) → fault stage, in the one offline loop
+(:func:`vcsumo.sim.offline.run_convoy`).  A command flagged ``emergency`` (a fault, the CBF's
+K_E^F, a guard intervention beyond the service brake) is applied with the train's emergency brake
+(its true rate), everything else within its true service envelope.
 
 Rows are appended to ``safety.csv`` as scenarios finish (one whole line at a time), so an
 interrupted campaign keeps its finished scenarios and re-running the same command resumes it.
@@ -75,18 +81,20 @@ import pandas as pd
 from pydantic import Field, field_validator
 
 from vcsumo.config import StrictModel
-from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
+from vcsumo.control.base import Command, Observation
 from vcsumo.control.cbf import barrier_from_stops
 from vcsumo.control.channel import Channel, ChannelConfig, Window
-from vcsumo.sim.offline import steady_force
-from vcsumo.control.faults import FaultStage
 from vcsumo.control.proxies import sample_params
-from vcsumo.dynamics import TrainParams, brake_force_limit
+from vcsumo.control.params import resolve_params
+from vcsumo.control.registry import check_controller
+from vcsumo.control.stack import FollowerStack, SampledController  # noqa: F401 - SampledController re-exported
+from vcsumo.dynamics import TrainParams
 from vcsumo.errors import InputError, VcsumoError
-from vcsumo.plant import PlantState, TrainPlant
+from vcsumo.plant import PlantState
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import unhindered_run
+from vcsumo.sim.offline import Odometry, OfflineTrain, follower_stacks, run_convoy, steady_force, tracking_force
 
 SAFETY_CONTROLLERS = ("mpc", "cbc", "cbf-mpc", "cbf-cbc")
 KINDS = ("cruise", "forming", "merge", "split")
@@ -275,92 +283,19 @@ def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
 
 
 # -------------------------------------------------------------------------------------------
-# Controllers
+# Controllers: the registry's stacks, as in the SUMO loop
+
+_REUSE: dict = {}
+"""Expensive controller parts kept between scenarios in one process (the NMPC's route DP), see
+:class:`~vcsumo.control.registry.StackContext`."""
 
 
-@dataclass
-class _Follower:
-    controller: object
-    supervisor: object | None
-    safe_gap_m: float
-    coupled_gap: Callable[[float], float]
-    """The controller's own spacing at a common speed v, m."""
-
-
-def _param_file(spec: str | None, default: str) -> Path:
-    from vcsumo.sim.vc_driver import _param_path
-
-    return _param_path(spec, default)
-
-
-@lru_cache(maxsize=None)
-def _mpc_instance(line: str, direction: str, params_spec: str | None, step_s: float, period_s: float, slot: int):
-    """One follower NMPC per route and process: its DP profile and terminal set (eq. 10, 12m) are
-    computed once for the route and reused; :meth:`reset` clears the warm start between scenarios.
-    ``slot`` is the follower's place in the convoy (each follower has its own instance).  The NMPC
-    is solved every ``period_s`` (its step) over the horizon it has in the SUMO loop at ``step_s``
-    (N_p·step_s: 8 s with mpc.yaml's N_p = 40 at 0.2 s)."""
-    from vcsumo.control.mpc import FollowerMPC, load_mpc_settings
-
-    route = line_route(line, direction)
-    settings = load_mpc_settings(_param_file(params_spec, "mpc"))
-    # the follower's braking assumption of 12m cannot exceed what the train nominally has (the metro
-    # value of mpc.yaml, 0.75 m/s², is above the ETR1000's 0.65 m/s²)
-    a_f = min(settings.a_follower_mps2, route.stock.service_brake_decel_mps2)
-    n_p = max(5, int(round(settings.horizon_steps * step_s / period_s)))
-    settings = settings.model_copy(update={"step_s": period_s, "horizon_steps": n_p, "a_follower_mps2": a_f})
-    ctrl = FollowerMPC(route.stock.params(), settings, route_end_m=route.profile.length_m)
-    if slot > 1:
-        ctrl.share_route_data(_mpc_instance(line, direction, params_spec, step_s, period_s, 1))
-    ctrl.route_data(route.profile)
-    return ctrl
-
-
-def make_follower(controller: str, route: LineRoute, step_s: float, cbf_config: str | None, predecessor: str = "T0", slot: int = 1,
-                  position_error_m: float = 0.0, control_period_s: float | None = None) -> _Follower:
-    """Nominal controller, CBF supervisor (``cbf-`` names), minimum safe gap and coupled spacing."""
-    from vcsumo.sim.vc_driver import parse_controller
-
-    name, params_spec = parse_controller(controller)
-    base = name.removeprefix("cbf-")
-    control_period_s = control_period_s or step_s
-    stock = route.stock
-    if base == "cbc":
-        from vcsumo.control.consensus import ConsensusController, load_cbc_params
-
-        prm = load_cbc_params(_param_file(params_spec, "cbc"))
-        ctrl: object = ConsensusController(prm)
-        d_min = prm.gap.d_min_m
-        coupled = lambda v: prm.gap.gap_m(v, v)  # noqa: E731 - eq. 3.1 + constant time headway
-    elif base == "mpc":
-        ctrl = _mpc_instance(route.line, route.direction, params_spec, step_s, control_period_s, slot)
-        ctrl.reset()
-        s = ctrl.settings
-        d_min = s.d_min_m
-
-        def coupled(v: float) -> float:  # the relative braking distance of constraint 12m, at least d_des
-            rel = v * v / (2.0 * s.a_follower_mps2) - v * v / (2.0 * s.a_leader_mps2)
-            return max(s.d_des_m, d_min + max(rel, 0.0))
-    elif base == "cruise":
-        from vcsumo.control.cbf import load_cbf_config
-        from vcsumo.control.cruise import SwitchedCruiseController, load_cruise_config
-
-        cbf_cfg = load_cbf_config(_param_file(cbf_config, "cbf"))
-        ctrl = SwitchedCruiseController(stock, stock, load_cruise_config(_param_file(params_spec, "cruise_terlizzi2024")), cbf_cfg, leader_id=predecessor)
-        d_min = cbf_cfg.safety_distance_m
-        coupled = lambda v: d_min  # noqa: E731
-    else:  # pragma: no cover - parse_controller checks names
-        raise VcsumoError(f"unknown controller {controller}")
-    sup = None
-    if name.startswith("cbf-"):
-        from vcsumo.control.cbf import CBFSupervisor, load_cbf_config
-
-        cbf_cfg = load_cbf_config(_param_file(cbf_config, "cbf"))
-        if position_error_m > cbf_cfg.position_error_m:  # the supervisor knows the bound of the odometry error (Felez eq. 9)
-            cbf_cfg = cbf_cfg.model_copy(update={"position_error_m": position_error_m})
-        sup = CBFSupervisor(stock, stock, cbf_cfg, record=False)
-        d_min = max(d_min, sup.cfg.safety_distance_m)
-    return _Follower(ctrl, sup, d_min, coupled)
+def follower_stacks_for(controller: str, route: LineRoute, ids: list[str], cfg: SafetyCampaign) -> list[FollowerStack]:
+    """Every follower's stack, built by the registry exactly as the SUMO loop builds it (nominal
+    controller → CBF supervisor for ``cbf-`` names → separation guard → fault stage), with the
+    campaign's ATO cycle (``control_period_s``) and odometry error bound."""
+    return follower_stacks(controller, [route.stock] * len(ids), ids, cfg.step_s, route.profile, supervisor_params=cfg.cbf_config,
+                           control_period_s=cfg.control_period_s, position_error_m=cfg.position_error_max_m, record=False, reuse=_REUSE)
 
 
 def barrier_gap_m(sup, profile: RouteProfile, s_m: float, v_mps: float, length_m: float) -> float:
@@ -381,32 +316,20 @@ def barrier_gap_m(sup, profile: RouteProfile, s_m: float, v_mps: float, length_m
     return hi
 
 
-class SampledController:
-    """A nominal controller computed every ``period_s`` (the ATO cycle) inside a faster loop.
+def true_params(stock: RollingStock, rng: np.random.Generator, corner: bool, emergency_top: bool = False) -> TrainParams:
+    """A train's true parameters inside its uncertainty box (:func:`~vcsumo.control.proxies.sample_params`)
+    with an emergency deceleration inside the separation model's emergency-brake range
+    (:func:`vcsumo.signalling.separation.brake_range`, the default assumption set: nominal ±10 %):
+    at the same place in that range as the drawn service brake in its interval (a corner stays a
+    corner), or at its top with ``emergency_top`` (the leader's worst case: ETR1000 1.2 → 1.32 m/s²)."""
+    from vcsumo.signalling.assumptions import load_assumptions
+    from vcsumo.signalling.separation import brake_range
 
-    Between two computations the command is held; the NMPC applies its planned input u_k of the
-    step it is in (eq. 12, the plan's ``commands_n``) instead.  The safety supervisor downstream
-    still checks every step.
-    """
-
-    def __init__(self, controller, period_s: float):
-        self.controller = controller
-        self.period_s = period_s
-        self._held: Command | None = None
-        self._next_s = -math.inf
-
-    def make_step(self, obs: Observation) -> Command:
-        if self._held is None or obs.time_s >= self._next_s - 1e-9:
-            self._held = self.controller.make_step(obs)
-            self._next_s = obs.time_s + self.period_s
-            return self._held
-        c = self._held
-        sol = getattr(self.controller, "last_solution", None)
-        if sol is not None and sol.ok and not c.infeasible and len(sol.commands_n) > 1:
-            k = int(np.searchsorted(sol.times_s, obs.time_s + 1e-9, side="right")) - 1
-            k = min(max(k, 0), len(sol.commands_n) - 1)
-            return Command(force_n=float(sol.commands_n[k]), mode=c.mode, emergency=c.emergency, info=c.info)
-        return c
+    p = sample_params(stock, rng, corner=corner)
+    lo, hi = brake_range(stock, load_assumptions(), "emergency")
+    box = stock.uncertainty_box().service_brake_decel_mps2
+    frac = 1.0 if emergency_top else ((p.service_brake_decel_mps2 - box.low) / (box.high - box.low) if box.high > box.low else 0.5)
+    return p.with_(emergency_brake_decel_mps2=max(lo + frac * (hi - lo), p.service_brake_decel_mps2))
 
 
 # -------------------------------------------------------------------------------------------
@@ -425,8 +348,91 @@ def _unhindered(p: TrainParams, profile: RouteProfile, s0: float, v0: float, t_m
     return _Run(df.time_s.to_numpy(), df.s_m.to_numpy(), df.speed_mps.to_numpy())
 
 
+class CampaignLeader:
+    """The scenario's leader: tracks its unhindered run (P law with feed-forward on its nominal
+    model) and broadcasts that run as its plan; from ``brake_time_s`` it applies its emergency brake
+    and holds it (the plant brakes at its true emergency rate, the top of its box) and broadcasts
+    its nominal emergency stop."""
+
+    def __init__(self, run: _Run, nominal: TrainParams, brake_time_s: float, dt: float):
+        self.run, self.p, self.brake_time_s, self.dt = run, nominal, brake_time_s, dt
+
+    def make_step(self, obs: Observation) -> Command:
+        t = obs.time_s
+        if t >= self.brake_time_s:
+            return Command(-math.inf, mode="emergency", emergency=True)
+        run = self.run
+        v_ref = float(np.interp(t, run.t, run.v))
+        a_ff = float(np.interp(t + self.dt, run.t, run.v) - v_ref) / self.dt
+        return Command(tracking_force(obs, v_ref, a_ff, 0.5), mode="leader")
+
+    def plan(self, t: float, s: float, v: float) -> tuple:
+        if t < self.brake_time_s:
+            times, pos, spd, frc = _plan_slice(self.run, t, 8.0)
+            return times, pos - pos[0] + s, spd, frc
+        return _braking_plan(self.p, s, v, t, 8.0)
+
+
+class _Watch:
+    """The campaign's safety bookkeeping on the true states, at the start of every step (the
+    offline loop's ``stop_when``): gaps, violations, collisions, the true barrier, time lost; it
+    ends the run at a collision, when a split is complete or 5 s after everything stopped."""
+
+    def __init__(self, spec: ScenarioSpec, L: float, safe_gap: float, models: list, d_cbf: float, free_runs: list[_Run]):
+        self.spec, self.L, self.safe_gap, self.models, self.d_cbf, self.free_runs = spec, L, safe_gap, models, d_cbf, free_runs
+        n = spec.followers + 1
+        self.min_gap = math.inf
+        self.violations = self.collisions = 0
+        self.armed = [True] * n
+        self.max_b = self.b_init = -math.inf
+        self.lost: list[float] = []
+        self.rest_since: float | None = None
+        self.error = ""
+
+    def __call__(self, t: float, xs: list[PlantState]) -> bool:
+        spec, L = self.spec, self.L
+        split_done = False
+        for i in range(1, len(xs)):
+            gap = xs[i - 1].s_m - L - xs[i].s_m
+            self.min_gap = min(self.min_gap, gap)
+            if gap < self.safe_gap - 1e-6:
+                if self.armed[i]:
+                    self.violations += 1
+                    self.armed[i] = False
+            else:
+                self.armed[i] = True
+            if gap <= 0.0:
+                self.collisions += 1
+                self.error = "collision"
+            m = self.models[i - 1]
+            if m is not None:
+                # eq. 15 on the true states, the follower's dead time from the force it really applies
+                b_true = barrier_from_stops(xs[i - 1].s_m, m.leader_stop(xs[i - 1].s_m, xs[i - 1].v_mps), xs[i].s_m,
+                                            m.follower_stop(xs[i].s_m, xs[i].v_mps, 0.0, xs[i].force_n), L, self.d_cbf)[0]
+                self.max_b = max(self.max_b, b_true)
+                if t == 0.0:
+                    self.b_init = max(self.b_init, b_true)
+        if self.error:
+            return True
+        if spec.kind == "split" and xs[0].s_m - L > spec.junction_s_m + 50.0:
+            split_done = True  # the leader has left the trunk: the first follower is no longer behind it
+        if split_done:
+            return True
+        if t >= spec.brake_time_s and not self.lost:
+            for i in range(1, len(xs)):
+                fr = self.free_runs[i - 1]
+                self.lost.append(t - float(np.interp(xs[i].s_m, fr.s, fr.t)))
+        if t > spec.brake_time_s and all(x.v_mps < 0.01 for x in xs):
+            self.rest_since = t if self.rest_since is None else self.rest_since
+            if t - self.rest_since >= 5.0:
+                return True
+        else:
+            self.rest_since = None
+        return False
+
+
 def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> dict:
-    """Run one scenario with one controller; return its row of ``safety.csv``."""
+    """Run one scenario with one controller in the offline loop; return its row of ``safety.csv``."""
     t_wall = time.perf_counter()
     route = line_route(spec.line, spec.direction)
     prof, stock = route.profile, route.stock
@@ -434,22 +440,23 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     nom = stock.params()
     rng = np.random.default_rng(spec.seed)
     n = spec.followers + 1
-    true_params = [sample_params(stock, rng, corner=c) for c in spec.corners]
+    # the leader's emergency brake at the top of its box; every other parameter drawn
+    params = [true_params(stock, rng, c, emergency_top=(k == 0)) for k, c in enumerate(spec.corners)]
     ids = [f"T{k}" for k in range(n)]
-    followers = [make_follower(controller, route, dt, cfg.cbf_config, ids[k - 1], k, cfg.position_error_max_m, cfg.control_period_s) for k in range(1, n)]
-    safe_gap = followers[0].safe_gap_m
-    models = [f.supervisor.model_for(prof) if f.supervisor is not None else None for f in followers]
-    d_cbf = followers[0].supervisor.cfg.safety_distance_m if followers[0].supervisor is not None else math.nan
-    stages = [FaultStage(SampledController(f.controller, cfg.control_period_s), nom, f.supervisor, ids[k + 1]) for k, f in enumerate(followers)]
+    stacks = follower_stacks_for(controller, route, ids, cfg)
+    safe_gap = stacks[0].d_min_m
+    sup0 = stacks[0].supervisor
+    models = [s.supervisor.model_for(prof) if s.supervisor is not None else None for s in stacks]
+    d_cbf = sup0.cfg.safety_distance_m if sup0 is not None else math.nan
     L = stock.length_m
 
     # initial spacing of every follower
     def spacing(k: int, v: float, s_pred: float) -> float:
-        f = followers[k - 1]
-        g = f.coupled_gap(v)
+        f = stacks[k - 1]
+        g = f.coupled_gap_m(v)
         if f.supervisor is not None:
             g = max(g, barrier_gap_m(f.supervisor, prof, s_pred, v, L))
-        return max(g, f.safe_gap_m + 1.0)
+        return max(g, f.d_min_m + 1.0)
 
     v_l0 = spec.leader_speed_mps
     speeds = [v_l0] + [spec.follower_speed_mps] + [v_l0] * (n - 2) if n > 1 else [v_l0]
@@ -461,7 +468,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
         v = speeds[k]
         if spec.kind == "merge" and k == 1:
             # admitted by the interlocking: absolute braking distance at the nominal brake + the minimum safe gap
-            g = spec.spacing_factor * (v * v / (2.0 * nom.service_brake_decel_mps2) + followers[0].safe_gap_m + 1.0)
+            g = spec.spacing_factor * (v * v / (2.0 * nom.service_brake_decel_mps2) + safe_gap + 1.0)
             g = max(g, positions[0] - L - spec.junction_s_m + 1.0)  # the follower is at or before the turnout
         elif spec.kind == "merge":
             g = spacing(k, v, positions[-1]) * 1.05
@@ -481,122 +488,30 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     cap_f = capped_profile(prof, max(max(speeds), 1.0))
     free_runs = [_unhindered(nom, cap_f, positions[k], speeds[k], horizon) for k in range(1, n)]
 
-    plants = [TrainPlant(true_params[k], PlantState(positions[k], speeds[k], steady_force(true_params[k], speeds[k], prof, positions[k]), 0.0), prof) for k in range(n)]
     outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
     channel = Channel(ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
                                     loss_probability=spec.loss_probability, outages=outages, seed=spec.seed))
     e_s = spec.position_error_m
-    bias = rng.uniform(-0.5 * e_s, 0.5 * e_s, size=n)
-    convoy = tuple(ids)
-    min_gap = math.inf
-    violations = collisions = emergencies = 0
-    armed = [True] * n
-    in_em = [False] * n
-    em_time = 0.0
-    max_b = b_init = -math.inf
-    lost: list[float] = []
-    steps = int(math.ceil(cfg.max_duration_s / dt))
-    rest_since = None
-    t = 0.0
-    error = ""
-    split_done = False
-    known: dict[int, Message] = {}  # what each follower knew of its predecessor when the scenario starts
-    for k in range(steps + 1):
-        t = k * dt
-        xs = [pl.x for pl in plants]
-        meas = [xs[i].s_m + bias[i] + rng.uniform(-0.5 * e_s, 0.5 * e_s) for i in range(n)]
-        if k == 0:
-            known = {i: Message(ids[i - 1], 0.0, TrainStateMsg(0.0, meas[i - 1], xs[i - 1].v_mps, xs[i - 1].accel_mps2, xs[i - 1].force_n), L,
-                                received_time_s=0.0) for i in range(1, n)}
-        # safety bookkeeping on the true states
-        for i in range(1, n):
-            if i == 1 and split_done:
-                continue
-            gap = xs[i - 1].s_m - L - xs[i].s_m
-            min_gap = min(min_gap, gap)
-            if gap < safe_gap - 1e-6:
-                if armed[i]:
-                    violations += 1
-                    armed[i] = False
-            else:
-                armed[i] = True
-            if gap <= 0.0:
-                collisions += 1
-                error = "collision"
-            if models[i - 1] is not None:
-                # eq. 15 on the true states, the follower's dead time from the force it really applies
-                m = models[i - 1]
-                b_true = barrier_from_stops(xs[i - 1].s_m, m.leader_stop(xs[i - 1].s_m, xs[i - 1].v_mps), xs[i].s_m,
-                                            m.follower_stop(xs[i].s_m, xs[i].v_mps, 0.0, xs[i].force_n), L, d_cbf)[0]
-                max_b = max(max_b, b_true)
-                if k == 0:
-                    b_init = max(b_init, b_true)
-        if error:
-            break
-        if spec.kind == "split" and not split_done and xs[0].s_m - L > spec.junction_s_m + 50.0:
-            split_done = True  # the leader has left the trunk: the first follower is no longer behind it
-            break
-        if t >= spec.brake_time_s and not lost:
-            for i in range(1, n):
-                fr = free_runs[i - 1]
-                lost.append(t - float(np.interp(xs[i].s_m, fr.s, fr.t)))
-        if t > spec.brake_time_s and all(x.v_mps < 0.01 for x in xs):
-            rest_since = t if rest_since is None else rest_since
-            if t - rest_since >= 5.0:
-                break
-        else:
-            rest_since = None
-        # messages (every train, stamped now, measured position)
-        braking = t >= spec.brake_time_s
-        for i in range(n):
-            if not channel.due(ids[i], t):
-                continue
-            times = pos = spd = frc = None
-            if i == 0:
-                if not braking:
-                    times, pos, spd, frc = _plan_slice(lead_run, t, 8.0)
-                    pos = pos - pos[0] + meas[0]
-                else:
-                    times, pos, spd, frc = _braking_plan(nom, meas[0], xs[0].v_mps, t, 8.0, dt)
-            msg = Message(ids[i], t, TrainStateMsg(t, meas[i], xs[i].v_mps, xs[i].accel_mps2, xs[i].force_n), L,
-                          plan_times_s=times, plan_positions_m=pos, plan_speeds_mps=spd, plan_forces_n=frc)
-            channel.send(msg, [r for r in ids if r != ids[i]], t)
-        forces = [0.0] * n
-        # leader: tracks its run, then the emergency brake (full brake of its true parameters, held)
-        if braking:
-            forces[0] = -1e12
-        else:
-            v_ref = float(np.interp(t, lead_run.t, lead_run.v))
-            a_ff = float(np.interp(t + dt, lead_run.t, lead_run.v) - v_ref) / dt
-            forces[0] = nom.mass_kg * nom.rotating_mass_factor * (a_ff + 0.5 * (v_ref - xs[0].v_mps)) + steady_force(nom, xs[0].v_mps, prof, xs[0].s_m)
-        for i in range(1, n):
-            obs = Observation(
-                time_s=t, step_s=dt, ego_id=ids[i], ego=TrainStateMsg(t, meas[i], xs[i].v_mps, xs[i].accel_mps2, xs[i].force_n), params=nom,
-                profile=prof, received={ids[i - 1]: known[i], **channel.deliver(ids[i], t)}, predecessor=ids[i - 1], convoy=convoy,
-                sensed_gap_m=meas[i - 1] - L - meas[i], sensed_speed_mps=xs[i - 1].v_mps,
-            )
-            cmd = stages[i - 1].make_step(obs)
-            if cmd.emergency:
-                em_time += dt
-                if not in_em[i]:
-                    emergencies += 1
-            in_em[i] = cmd.emergency
-            forces[i] = cmd.force_n if math.isfinite(cmd.force_n) else -1e12
-        for i in range(n):
-            plants[i].step(forces[i], dt)
-    if not lost:  # the scenario ended before the brake (a split completed first)
-        lost = [math.nan]
-    supervised = followers[0].supervisor is not None
+    odometry = Odometry(rng.uniform(-0.5 * e_s, 0.5 * e_s, size=n), e_s, rng)
+    leader = CampaignLeader(lead_run, nom, spec.brake_time_s, dt)
+    trains = [OfflineTrain(ids[k], params[k], PlantState(positions[k], speeds[k], steady_force(params[k], speeds[k], prof, positions[k]), 0.0),
+                           leader if k == 0 else stacks[k - 1], nominal=nom, plan=leader.plan if k == 0 else None) for k in range(n)]
+    watch = _Watch(spec, L, safe_gap, models, d_cbf, free_runs)
+    # the convoy has been communicating before the scenario starts: every follower knows its predecessor at t = 0
+    run = run_convoy(trains, prof, dt, math.ceil(cfg.max_duration_s / dt) * dt, channel=channel, send_plans=stacks[0].uses_plans, odometry=odometry,
+                     known_at_start=True, record_every=0, stop_when=watch)
+    lost = watch.lost or [math.nan]  # the scenario ended before the brake (a split completed first)
+    supervised = sup0 is not None
     return {
         "scenario": spec.id, "controller": controller, "supervised": supervised, "line": spec.line, "direction": spec.direction, "kind": spec.kind,
         "followers": spec.followers, "km_start": round(prof.km_at(spec.leader_start_m)[1], 3), "leader_speed_mps": spec.leader_speed_mps,
         "brake_time_s": spec.brake_time_s, "delay_s": spec.delay_s, "mean_extra_delay_s": spec.mean_extra_delay_s, "loss_probability": spec.loss_probability,
         "outage_s": 0.0 if spec.outage is None else spec.outage[1] - spec.outage[0], "position_error_m": spec.position_error_m,
         "corner_trains": int(sum(spec.corners)), "initial_gap_m": min(gaps0) if gaps0 else math.nan, "safe_gap_m": safe_gap,
-        "min_gap_m": min_gap, "min_gap_margin_m": min_gap - safe_gap, "gap_violations": violations, "collisions": collisions,
-        "emergency_activations": emergencies, "emergency_time_s": em_time, "initial_true_barrier_m": b_init if supervised else math.nan,
-        "max_true_barrier_m": max_b if supervised else math.nan,
-        "time_lost_s": float(np.mean(lost)), "simulated_s": t, "wall_time_s": time.perf_counter() - t_wall, "error": "",
+        "min_gap_m": watch.min_gap, "min_gap_margin_m": watch.min_gap - safe_gap, "gap_violations": watch.violations, "collisions": watch.collisions,
+        "emergency_activations": sum(run.emergency_activations[i] for i in ids[1:]), "emergency_time_s": sum(run.emergency_time_s[i] for i in ids[1:]),
+        "initial_true_barrier_m": watch.b_init if supervised else math.nan, "max_true_barrier_m": watch.max_b if supervised else math.nan,
+        "time_lost_s": float(np.mean(lost)), "simulated_s": run.end_time_s, "wall_time_s": time.perf_counter() - t_wall, "error": "",
     }
 
 
@@ -606,13 +521,12 @@ def _plan_slice(run: _Run, t: float, horizon_s: float) -> tuple:
     return grid, np.interp(grid, run.t, run.s), v, np.zeros_like(v)
 
 
-def _braking_plan(p: TrainParams, s: float, v: float, t: float, horizon_s: float, dt: float) -> tuple:
-    """The braking leader's own plan: its nominal full brake from its state."""
-    a = max(p.service_brake_decel_mps2, 1e-3)
+def _braking_plan(p: TrainParams, s: float, v: float, t: float, horizon_s: float) -> tuple:
+    """The braking leader's own plan: its nominal emergency stop from its state."""
+    a = max(p.emergency_brake_decel_mps2, 1e-3)
     tau = np.arange(0.0, horizon_s + 1e-9, 0.5)
-    tau_stop = v / a
-    tt = np.minimum(tau, tau_stop)
-    return t + tau, s + v * tt - 0.5 * a * tt * tt, np.maximum(v - a * tau, 0.0), -float(brake_force_limit(p, max(v, 0.1))) * np.ones_like(tau)
+    tt = np.minimum(tau, v / a)
+    return t + tau, s + v * tt - 0.5 * a * tt * tt, np.maximum(v - a * tau, 0.0), -p.mass_kg * a * np.ones_like(tau)
 
 
 # -------------------------------------------------------------------------------------------
@@ -646,15 +560,13 @@ def scenario_task(args: tuple) -> list[dict]:
 def check_campaign(cfg: SafetyCampaign, source: Path | None = None) -> None:
     """Validate lines and controllers before anything runs (one clear error naming the input)."""
     from vcsumo.line import load_line
-    from vcsumo.sim.vc_driver import parse_controller
 
     for ln in cfg.lines:
         load_line(ln)
-    for c in cfg.controllers:
-        name, spec = parse_controller(c)
-        _param_file(spec, {"cbc": "cbc", "mpc": "mpc", "cruise": "cruise_terlizzi2024"}[name.removeprefix("cbf-")])
+    for i, c in enumerate(cfg.controllers):
+        check_controller(c, "--controllers" if source is None else f"controllers[{i}]", supervisor_params=cfg.cbf_config)
     if cfg.cbf_config:
-        _param_file(cfg.cbf_config, "cbf")
+        resolve_params(cfg.cbf_config, "cbf", "--cbf" if source is None else "cbf_config")
     if len(set(cfg.controllers)) != len(cfg.controllers):
         raise InputError(source, "controllers", "a controller is listed twice")
 

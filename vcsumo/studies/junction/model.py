@@ -25,7 +25,8 @@ from vcsumo.sim.junction_policy import JunctionPolicy, MergeSignal
 from vcsumo.sim.loop import MeasuringPoint, Scenario, Snapshot, simulate
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.sim.sumo_io import PredecessorConstraint, SignalRecording, SumoLogCounts, rail_signal_links, read_signal_switches, read_sumo_log, write_additional
-from vcsumo.sim.vc_driver import VCDriver, load_channel, load_guard
+from vcsumo.control.guard import load_guard
+from vcsumo.sim.vc_driver import VCDriver, load_channel
 from vcsumo.timetable import PlannedTrain
 
 ROLES = ("branch", "main")

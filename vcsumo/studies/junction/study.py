@@ -18,7 +18,8 @@ from vcsumo.line import Line
 from vcsumo.plots.junction import plot_junction_regimes, plot_junction_sweep
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.sim.vc_driver import guaranteed_decel, parse_controller, strongest_decel
+from vcsumo.control.guard import guaranteed_decel, strongest_decel
+from vcsumo.control.registry import parse_controller
 from vcsumo.studies.junction.metrics import actual_order, formation, run_metrics, signal_rows, speed_at_trace, trajectory_rows, unhindered
 from vcsumo.studies.junction.model import (ROLES, SIGNAL_VARIANTS, Case, RunResult, Setup, build_setup, resolve_junctions, signal_links, simulate_pair,
                                            solo_runs)
