@@ -42,6 +42,7 @@ import numpy as np
 
 from vcsumo.dynamics import running_resistance
 from vcsumo.rolling_stock import RollingStock
+from vcsumo.running_time import curve_speed as authority_speed  # the braking curve: v·T + (v² − v_t²)/(2a) ≤ distance
 from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.units import G
 
@@ -98,19 +99,6 @@ def relative_braking_gap(v_f: float, v_l: float, a_f: float, a_l: float, dead_ti
 def absolute_braking_gap(v_f: float, a_f: float, dead_time_s: float) -> float:
     """Distance to stop behind a fixed point: v·T + v²/(2·a), m (numpy arrays accepted)."""
     return v_f * dead_time_s + v_f * v_f / (2.0 * a_f)
-
-
-def authority_speed(distance_m: float, a_f: float, dead_time_s: float, target_speed_mps: float = 0.0) -> float:
-    """Permitted speed on a braking curve: the largest v with v·T + (v² − v_t²)/(2·a) ≤ distance, m/s.
-
-    ``distance_m`` runs to the target (end of authority, stopping point, start of a lower speed
-    limit); at or past it the permitted speed is the target speed.
-    """
-    if distance_m <= 0.0:
-        return target_speed_mps
-    k = a_f * dead_time_s
-    v = -k + math.sqrt(k * k + target_speed_mps * target_speed_mps + 2.0 * a_f * distance_m)
-    return max(v, target_speed_mps)
 
 
 def leader_worst_state(v_l: float, a_l: float, age_s: float) -> tuple[float, float]:
@@ -229,6 +217,15 @@ class SeparationModel:
     def follower_decel(self, stock: RollingStock, v_mps: float, grade_low: float = 0.0, kind: str | None = None):
         """Guaranteed deceleration of a follower under the absolute rule (``kind`` None) or ``kind``."""
         return guaranteed_decel(stock, self.assumptions, kind or self.assumptions.absolute_braking, v_mps, grade_low)
+
+    def planning_braking(self, stock: RollingStock):
+        """``braking(v, lowest gradient)`` of the absolute rule for :func:`vcsumo.running_time.unhindered_run`."""
+        kind = self.assumptions.absolute_braking
+
+        def braking(v_mps: float, grade_low: float) -> float:
+            return guaranteed_decel(stock, self.assumptions, kind, v_mps, grade_low)
+
+        return braking
 
     def vc_decels(self, follower: RollingStock, leader: RollingStock, v_f: float, v_l: float, grade_f: float = 0.0,
                   grade_l: float = 0.0) -> tuple[float, float]:
