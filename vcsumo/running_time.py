@@ -7,11 +7,11 @@ Integrates eq. 1b (:mod:`vcsumo.dynamics`) with SUMO's semi-implicit Euler schem
 * a lower limit ahead is approached braking at the service deceleration, a limit (and a turnout)
   is held until the whole train has passed it;
 * stops are approached at the service deceleration with a reaction of one step;
-* with ``braking`` given (the guaranteed deceleration of :mod:`vcsumo.signalling.separation` as a
-  function of speed and of the lowest gradient between the train's rear and the target), limits
-  and stops are approached on the braking curves of vcsumo's supervision
-  (:mod:`vcsumo.sim.supervision`) instead: the curve with that deceleration and a 1.5-step
-  reaction, stops finished at a creep speed — as the trains SUMO drives under supervision run;
+* with ``curve`` given (a braking curve: the permitted speed at s towards a target, e.g.
+  :meth:`vcsumo.signalling.separation.RouteBraking.curve` — guaranteed braking integrated over the
+  gradient profile), limits and stops are approached on the braking curves of vcsumo's
+  supervision (:mod:`vcsumo.sim.supervision`) instead, stops finished at a creep speed — as the
+  trains SUMO drives under supervision run;
 * SUMO's Rail model keeps a train that has reached its own maximum speed at that speed whatever
   the gradient (``hold_at_vmax``), a SUMO simplification reproduced here.
 
@@ -64,13 +64,13 @@ def unhindered_run(
     stop_at_end: bool = True,
     hold_at_vmax: bool = True,
     t_max: float = 36000.0,
-    braking: Callable[[float, float], float] | None = None,
+    curve: Callable[[float, float, float, float], float] | None = None,
 ) -> pd.DataFrame:
     """Simulate one train alone; return a DataFrame with ``time_s, s_m, speed_mps, accel_mps2``.
 
     ``stops`` are served in order of position; ``end_s`` (default: route end) is where the run
-    ends, braking to a stop there when ``stop_at_end``.  ``braking(v, lowest gradient)``: the
-    deceleration supervised braking curves plan with (None: SUMO's own planning at the service
+    ends, braking to a stop there when ``stop_at_end``.  ``curve(s, target, target speed, v)``:
+    the permitted speed of supervised braking curves (None: SUMO's own planning at the service
     deceleration).
     """
     b = p.service_brake_decel_mps2
@@ -99,23 +99,21 @@ def unhindered_run(
         while ti < len(targets) and targets[ti][0] <= s:
             ti += 1
         j = ti
-        b_reach = b if braking is None else min(b, braking(v, profile.gradient_range(s - L, s + v * v / (2 * b) + 2000.0)[0]))
-        horizon = v * v / (2 * b_reach) + 2 * v * dt + 10.0
+        horizon = v * v / (2 * (b if curve is None else min(b, 0.15))) + 2 * v * dt + 10.0
         while j < len(targets) and targets[j][0] - s <= horizon:
             ps, pv = targets[j]
-            if braking is None:
+            if curve is None:
                 v_lim = min(v_lim, discrete_approach_speed(ps - s, pv, b, dt))
             else:
-                v_lim = min(v_lim, curve_speed(ps - s, braking(v, profile.gradient_range(s - L, ps)[0]), 1.5 * dt, pv))
+                v_lim = min(v_lim, curve(s, ps, pv, v))
             j += 1
         # next stop
         if pending:
             gap = pending[0].s_m - s
-            if braking is None:
+            if curve is None:
                 v_lim = min(v_lim, discrete_stop_speed(gap, b, dt))
             elif gap > 0.0:
-                a = braking(v, profile.gradient_range(s - L, pending[0].s_m)[0])
-                v_lim = min(v_lim, max(STOP_CREEP_MPS, curve_speed(gap, a, 1.5 * dt)))
+                v_lim = min(v_lim, max(STOP_CREEP_MPS, curve(s, pending[0].s_m, 0.0, v)))
             else:
                 v_lim = 0.0
         # traction
@@ -126,7 +124,7 @@ def unhindered_run(
             v_trac = v + a_max * dt
         v_new = max(0.0, min(v_trac, v_lim))
         s_new = s + v_new * dt
-        if pending and s_new >= pending[0].s_m - 0.05 and (v_new <= b * dt + 1e-9 or braking is not None):
+        if pending and s_new >= pending[0].s_m - 0.05 and (v_new <= b * dt + 1e-9 or curve is not None):
             # arrive: SUMO stops the train at the stop position
             s_new = max(s, min(s_new, pending[0].s_m))
             v_new = 0.0

@@ -218,15 +218,6 @@ class SeparationModel:
         """Guaranteed deceleration of a follower under the absolute rule (``kind`` None) or ``kind``."""
         return guaranteed_decel(stock, self.assumptions, kind or self.assumptions.absolute_braking, v_mps, grade_low)
 
-    def planning_braking(self, stock: RollingStock):
-        """``braking(v, lowest gradient)`` of the absolute rule for :func:`vcsumo.running_time.unhindered_run`."""
-        kind = self.assumptions.absolute_braking
-
-        def braking(v_mps: float, grade_low: float) -> float:
-            return guaranteed_decel(stock, self.assumptions, kind, v_mps, grade_low)
-
-        return braking
-
     def vc_decels(self, follower: RollingStock, leader: RollingStock, v_f: float, v_l: float, grade_f: float = 0.0,
                   grade_l: float = 0.0) -> tuple[float, float]:
         """(follower's guaranteed, leader's strongest) deceleration of the relative-braking rule, m/s²."""
@@ -261,3 +252,108 @@ class SeparationModel:
         """Distance a fixed-block train needs to stop at a signal (its end of authority), m."""
         a_f = self.follower_decel(follower, v_mps, grade_low)
         return absolute_braking_gap(v_mps, a_f, self.dead_time_s) + self.assumptions.position_error_m
+
+
+# -------------------------------------------------------------------------------------------
+# Braking curves along a route (gradient profile integrated, as ETCS braking curves are)
+
+
+class RouteBraking:
+    """A train's guaranteed braking along its route, integrated over the gradient profile.
+
+    Braking from v to v_t over a stretch uses the energy budget v²/2 − v_t²/2 = ∫ a(x) dx, with
+    a(x) the guaranteed deceleration while the front is at x (brake at the bottom of the box,
+    Davis A, the lowest gradient under the train's body there: min over [x − L, x], counted only
+    when it is a descent; over ρ).  That is exact for the piecewise-constant gradient profile and
+    continuous in position, unlike one worst gradient for the whole distance.  The brake part is
+    taken at the speed the braking starts from (a brake-power limit only eases as the train slows).
+
+    * :meth:`permitted_speed` — the braking curve towards a target (supervision, running times);
+    * :meth:`stopping_distance` — how far the train runs before it stands (health monitor,
+      analytic headways).
+    """
+
+    def __init__(self, model: "SeparationModel", stock: RollingStock, profile, kind: str | None = None):
+        self.model = model
+        self.stock = stock
+        self.kind = kind or model.assumptions.absolute_braking
+        a = model.assumptions
+        low, _ = brake_range(stock, a, self.kind)
+        box = stock.uncertainty
+        self.m_high = stock.mass_kg if box is None else box.mass_kg.high
+        self.brake_low = low
+        self.power_low = None
+        if stock.max_brake_power_w is not None:
+            self.power_low = stock.max_brake_power_w if box is None or box.max_brake_power_w is None else box.max_brake_power_w.low
+        self.res_low = (stock.davis_a_n if box is None else box.davis_a_n.low) / self.m_high
+        self.rho = stock.rotating_mass_factor
+        starts = np.asarray(profile.starts_m, dtype=float)
+        lengths = np.asarray(profile.lengths_m, dtype=float)
+        g_low = np.array([min(profile.gradient_range(x - stock.length_m, x + ln)[0], 0.0) for x, ln in zip(starts, lengths)])
+        self.x = np.concatenate([starts, [starts[-1] + lengths[-1]]])
+        self.g_low = g_low
+        self.grade_integral = np.concatenate([[0.0], np.cumsum(g_low * lengths)])
+        worst = self.brake_part(stock.max_speed_ms) + G * float(g_low.min()) / self.rho
+        if worst <= 0.0:
+            raise ValueError(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
+
+    def brake_part(self, v_mps: float) -> float:
+        """Guaranteed deceleration without the gradient at speed v, m/s²."""
+        b = self.brake_low
+        if self.power_low is not None:
+            b = min(b, self.power_low / (self.m_high * max(v_mps, 0.1)))
+        return (b + self.res_low) / self.rho
+
+    def _grade_integral_at(self, s: float) -> float:
+        x = self.x
+        if s <= x[0]:
+            return self.g_low[0] * (s - x[0])
+        if s >= x[-1]:
+            return float(self.grade_integral[-1]) + self.g_low[-1] * (s - x[-1])
+        return float(np.interp(s, x, self.grade_integral))
+
+    def decel_at(self, s: float, v_mps: float) -> float:
+        """Guaranteed deceleration with the front at s, m/s²."""
+        i = min(max(int(np.searchsorted(self.x, s, side="right")) - 1, 0), len(self.g_low) - 1)
+        return self.brake_part(v_mps) + G * float(self.g_low[i]) / self.rho
+
+    def energy(self, s0: float, s1: float, v_mps: float) -> float:
+        """∫ a(x) dx over [s0, s1] for braking that starts at speed v, m²/s²."""
+        return self.brake_part(v_mps) * (s1 - s0) + G * (self._grade_integral_at(s1) - self._grade_integral_at(s0)) / self.rho
+
+    def permitted_speed(self, s_m: float, target_m: float, target_speed_mps: float, dead_time_s: float, v_mps: float) -> float:
+        """The braking curve at s: the largest speed from which the train, after the dead time,
+        brakes to ``target_speed_mps`` by ``target_m``, m/s (the target speed at or past it)."""
+        if target_m <= s_m:
+            return target_speed_mps
+        e = 0.5 * target_speed_mps * target_speed_mps + self.energy(s_m, target_m, max(v_mps, target_speed_mps))
+        a = self.decel_at(s_m, v_mps)
+        k = a * dead_time_s
+        return max(target_speed_mps, -k + math.sqrt(k * k + 2.0 * max(e, 0.0)))
+
+    def stopping_distance(self, s_m: float, v_mps: float, dead_time_s: float) -> float:
+        """Distance from the front at s to where the train stands, braking after the dead time, m."""
+        if v_mps <= 0.0:
+            return 0.0
+        x0 = s_m + v_mps * dead_time_s
+        b = self.brake_part(v_mps)
+        need = 0.5 * v_mps * v_mps
+        # F(x) = b·x + g·Gi(x)/ρ is increasing (a > 0 everywhere); invert it past x0
+        xs = self.x
+        f = b * xs + G * self.grade_integral / self.rho
+        f0 = b * x0 + G * self._grade_integral_at(x0) / self.rho
+        target = f0 + need
+        if target <= f[-1]:
+            x_stop = float(np.interp(target, f, xs))
+        else:  # beyond the route's end the last edge's gradient continues
+            x_stop = float(xs[-1]) + (target - float(f[-1])) / (b + G * float(self.g_low[-1]) / self.rho)
+        x_stop = max(x_stop, x0)
+        return x_stop - s_m
+
+    def curve(self, dead_time_s: float):
+        """``curve(s, target, target speed, v)`` for :func:`vcsumo.running_time.unhindered_run`."""
+
+        def f(s_m: float, target_m: float, target_speed_mps: float, v_mps: float) -> float:
+            return self.permitted_speed(s_m, target_m, target_speed_mps, dead_time_s, v_mps)
+
+        return f

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from vcsumo.signalling.separation import SeparationModel, relative_braking_gap, strongest_decel
+from vcsumo.signalling.separation import RouteBraking, SeparationModel, relative_braking_gap, strongest_decel
 from vcsumo.timetable import PlannedTrain
 
 GAP_TOLERANCE_M = 0.01
@@ -64,22 +64,16 @@ class HealthMonitor:
         self.model = model
         self.plans = {t.id: t for t in trains}
         self.trains: dict[str, TrainHealth] = {t.id: TrainHealth() for t in trains}
+        self.braking = {t.id: RouteBraking(model, t.stock, t.profile) for t in trains}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
         self.collision_rows: list[tuple] = []
 
     # ------------------------------------------------------------------------------------------
     def absolute_gap(self, train_id: str, s_m: float, v_mps: float) -> float:
-        """The safe separation of a train under absolute braking at (s, v), m."""
-        p = self.plans[train_id]
-        h = self.trains[train_id]
-        stop = v_mps * v_mps / (2 * 0.3) + v_mps * self.model.dead_time_s
-        g_low, _ = p.profile.gradient_range(s_m - p.stock.length_m, s_m + stop)
-        key = ("abs", round(g_low, 5), int(v_mps * 2))
-        a = h._cache.get(key)
-        if a is None:
-            a = self.model.follower_decel(p.stock, v_mps, g_low)
-            h._cache[key] = a
-        return self.model.margin_m + v_mps * self.model.dead_time_s + v_mps * v_mps / (2.0 * a)
+        """The safe separation of a train under absolute braking at (s, v), m: margin and position
+        errors plus the distance it needs to stop on its route (guaranteed braking on the grades
+        between its rear and where it stops, after the dead time)."""
+        return self.model.margin_m + self.braking[train_id].stopping_distance(s_m, v_mps, self.model.dead_time_s)
 
     def relative_gap(self, train_id: str, s_m: float, v_mps: float, leader_id: str, leader_s_m: float, leader_v_mps: float) -> float:
         """The safe separation of a virtually coupled follower behind ``leader_id`` (relative braking

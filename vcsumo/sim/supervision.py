@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 
 from vcsumo.errors import VcsumoError
 from vcsumo.running_time import STOP_CREEP_MPS
-from vcsumo.signalling.separation import SeparationModel, authority_speed, guaranteed_decel
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.timetable import PlannedTrain
 
 
@@ -54,14 +54,12 @@ class _Curves:
     stops: list[float]
     end_s: float | None
     signals: list[float]
-    reach_decel: float
+    braking: RouteBraking
     next_stop: int = 0
     first_seen_s: float = math.nan
     odo_m: float = 0.0
     history_t: deque = field(default_factory=deque)
     history_odo: deque = field(default_factory=deque)
-    decel_key: tuple = field(default=())
-    decel_val: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -95,24 +93,15 @@ class BrakingCurveSupervisor:
             end_s = None
             if t.final_stop is None and t.stop_at_end:
                 end_s = t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m)
-            g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
-            try:  # the weakest braking anywhere on the route bounds how far ahead a target can matter
-                reach_decel = guaranteed_decel(t.stock, model.assumptions, kind, t.stock.max_speed_ms, g_low)
+            try:
+                braking = RouteBraking(model, t.stock, t.profile, kind)
             except ValueError:
+                g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
                 raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
                                   f"({1000 * g_low:.1f} ‰) under the assumption set '{model.assumptions.name}'") from None
-            self.curves[t.id] = _Curves(t, t.profile.restriction_targets(), sorted(stops), end_s, sorted((signals or {}).get(t.id, [])), reach_decel)
+            self.curves[t.id] = _Curves(t, t.profile.restriction_targets(), sorted(stops), end_s, sorted((signals or {}).get(t.id, [])), braking)
 
     # ------------------------------------------------------------------------------------------
-    def _decel(self, c: _Curves, s_rear: float, s_target: float, v: float) -> float:
-        """Guaranteed deceleration between the train's rear and a target (cached per target)."""
-        g_low, _ = c.plan.profile.gradient_range(s_rear, max(s_target, s_rear))
-        key = (round(g_low, 6), round(v, 0))
-        if key != c.decel_key:
-            c.decel_key = key
-            c.decel_val = guaranteed_decel(c.plan.stock, self.model.assumptions, self.model.assumptions.absolute_braking, v, g_low)
-        return c.decel_val
-
     def observe(self, train_id: str, time_s: float, odometer_m: float) -> None:
         """The train's odometer this step (kept as long as the fixed time and report period need)."""
         c = self.curves.get(train_id)
@@ -181,17 +170,16 @@ class BrakingCurveSupervisor:
         p = c.plan
         a_set = self.model.assumptions
         dt = self.step_s
-        length = p.stock.length_m
-        s_rear = s_m - length
         best, reason = math.inf, ""
-        # how far ahead a target can matter: the stopping distance at a generous deceleration bound
-        reach = v_mps * (a_set.dead_time_s + 2 * dt) + v_mps * v_mps / (2 * c.reach_decel) + 50.0
+        # how far ahead a target can matter: the stopping distance with a generous margin
+        br = c.braking
+        reach = 1.3 * br.stopping_distance(s_m, v_mps, a_set.dead_time_s + 2 * dt) + 50.0
         for s_t, v_t in c.restrictions:
             if s_t <= s_m:
                 continue
             if s_t - s_m > reach:
                 break
-            vp = authority_speed(s_t - s_m, self._decel(c, s_rear, s_t, v_mps), 1.5 * dt, v_t)
+            vp = br.permitted_speed(s_m, s_t, v_t, 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "limit"
         while c.next_stop < len(c.stops) and c.stops[c.next_stop] < s_m - 1.0:
@@ -199,17 +187,16 @@ class BrakingCurveSupervisor:
         if c.next_stop < len(c.stops):
             s_t = c.stops[c.next_stop]
             if s_t - s_m <= reach:
-                vp = max(STOP_CREEP_MPS, authority_speed(s_t - s_m, self._decel(c, s_rear, s_t, v_mps), 1.5 * dt))
+                vp = max(STOP_CREEP_MPS, br.permitted_speed(s_m, s_t, 0.0, 1.5 * dt, v_mps))
                 if vp < best:
                     best, reason = vp, "stop"
         if c.end_s is not None and c.end_s - s_m <= reach:
-            vp = authority_speed(c.end_s - s_m - a_set.position_error_m, self._decel(c, s_rear, c.end_s, v_mps), a_set.dead_time_s + 1.5 * dt)
+            vp = br.permitted_speed(s_m, c.end_s - a_set.position_error_m, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "end"
         d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s)
         if d_ma <= reach:
-            s_t = s_m + max(d_ma, 0.0)
-            vp = authority_speed(d_ma, self._decel(c, s_rear, s_t, v_mps), a_set.dead_time_s + 1.5 * dt)
+            vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "authority"
         return Permitted(best, reason, d_ma)

@@ -41,7 +41,7 @@ import pandas as pd
 
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
-from vcsumo.signalling.separation import SeparationModel
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
@@ -129,8 +129,8 @@ def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: s
     if s_rel <= start + 1.0:
         s_rel, v0 = start, 0.0
     else:
-        braking = model.planning_braking(stock) if model is not None else None
-        run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False, braking=braking)
+        curve = RouteBraking(model, stock, full).curve(1.5 * step_s) if model is not None else None
+        run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False, curve=curve)
         v0 = speed_at(run0, s_rel)
     return RouteSetup(direction, list(track.edges), full, s_rel, v0, _intermediate_stops(line, net, direction, full, s_rel), rel)
 
@@ -168,7 +168,7 @@ def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float
     """The unit leader's run alone, as the supervised SUMO driver runs it (guaranteed braking)."""
     stops = setup.stops_full if case.pattern == "all-stops" else []
     return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops],
-                          stop_at_end=False, braking=model.planning_braking(stock))
+                          stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
 
 
 def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,

@@ -9,7 +9,7 @@ import pandas as pd
 
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.signalling.separation import SeparationModel
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 
 SUPERVISION_REACTION_STEPS = 1.5
 """The supervisor's curves add 1.5 simulation steps to the dead time (semi-implicit Euler), as
@@ -20,8 +20,8 @@ SUPERVISION_REACTION_STEPS = 1.5
 class SupervisedBraking:
     """Braking distance of a train under the absolute rule, along its route, m.
 
-    D(v, s) = v·(T + 1.5·Δt) + v²/(2·a(v, i)), with a the guaranteed deceleration on the lowest
-    gradient between the train's rear and where it would stop (the rule the supervisor enforces).
+    D(v, s): after the dead time T + 1.5·Δt, guaranteed braking integrated over the gradient
+    profile (:class:`vcsumo.signalling.separation.RouteBraking`) — the rule the supervisor enforces.
     """
 
     model: SeparationModel
@@ -34,20 +34,11 @@ class SupervisedBraking:
         return self.model.dead_time_s + SUPERVISION_REACTION_STEPS * self.step_s
 
     def distance(self, v, s=None):
+        """D(v, s) on the route (s None: at the route's start), m (arrays accepted)."""
+        br = RouteBraking(self.model, self.stock, self.profile)
         v_arr = np.atleast_1d(np.asarray(v, dtype=float))
         s_arr = np.zeros_like(v_arr) if s is None else np.broadcast_to(np.atleast_1d(np.asarray(s, dtype=float)), v_arr.shape)
-        L = self.stock.length_m
-        out = np.empty_like(v_arr)
-        cache: dict = {}
-        for k, (vk, sk) in enumerate(zip(v_arr, s_arr)):
-            stop = vk * vk / (2 * 0.3) + vk * self.dead_time_s
-            g_low = self.profile.gradient_range(sk - L, sk + stop)[0] if s is not None else 0.0
-            key = (round(g_low, 6), round(vk, 0))
-            a = cache.get(key)
-            if a is None:
-                a = self.model.follower_decel(self.stock, float(vk), g_low)
-                cache[key] = a
-            out[k] = vk * self.dead_time_s + vk * vk / (2.0 * a)
+        out = np.array([br.stopping_distance(float(sk), float(vk), self.dead_time_s) for vk, sk in zip(v_arr, s_arr)])
         return float(out[0]) if np.ndim(v) == 0 else out
 
 

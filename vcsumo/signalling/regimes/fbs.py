@@ -29,5 +29,7 @@ class FixedBlock(Regime):
         blocks = fbs_blocking_times(inp.run, inp.signals_m, inp.profile.length_m, length, inp.braking(),
                                     approach_offset_m=a.position_error_m, clear_offset_m=a.overlap_m + a.position_error_m)
         sel = blocks[blocks.approach_m <= inp.s_check_m]
+        if sel.empty:  # nothing approached yet: the first block is the first constraint
+            sel = blocks.iloc[:1]
         i = sel.blocking_time_s.idxmax()
         return AnalyticHeadway(float(sel.loc[i, "blocking_time_s"]) + a.fixed_time_s, float(sel.loc[i, "block_start_m"]), blocks)

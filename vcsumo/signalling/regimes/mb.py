@@ -25,6 +25,8 @@ class MovingBlock(Regime):
         a = inp.model.assumptions
         prof = mb_headway_profile(inp.run, convoy_size * inp.stock.length_m, inp.braking(), inp.model.margin_m)
         sel = prof[prof.s_m <= inp.s_check_m]
+        if sel.empty:
+            sel = prof.iloc[:1]
         i = sel.headway_s.idxmax()
         extra = a.position_report_period_s + a.fixed_time_s
         return AnalyticHeadway(float(sel.loc[i, "headway_s"]) + extra, float(sel.loc[i, "s_m"]))

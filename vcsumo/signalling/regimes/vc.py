@@ -58,6 +58,8 @@ class VirtualCoupling(Regime):
         lag = convoy_rear_lag(inp, convoy_size) if convoy_size > 1 else None
         prof = mb_headway_profile(inp.run, inp.stock.length_m, inp.braking(), inp.model.margin_m, rear_lag_at=lag)
         sel = prof[prof.s_m <= inp.s_check_m]
+        if sel.empty:
+            sel = prof.iloc[:1]
         i = sel.headway_s.idxmax()
         v0 = float(inp.run["speed_mps"].iloc[0])
         gap = inp.model.vc_gap(inp.stock, inp.stock, v0) if convoy_size > 1 else None
