@@ -204,6 +204,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
         supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals)
     authority_caps = 0
+    touching_before: set[tuple[str, str]] = set()
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}
     label = f"{scn.line.path} ({scn.regime}, network {scn.network.net_file})"
@@ -287,9 +288,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if vid in emergency_now and not tr.in_emergency:
                         tr.emergencies += 1
                     tr.in_emergency = vid in emergency_now
-            for collider, victim in sim.collisions():
+            touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
+            for collider, victim in touching - touching_before:  # one collision per episode
                 collisions.append((t, collider, victim))
                 health.collision(t, collider, victim, obs[collider].speed_mps if collider in obs else 0.0, obs[victim].speed_mps if victim in obs else 0.0)
+            touching_before = touching
             for vid in sim.teleports():
                 teleports.append((t, vid))
             if t + 1e-9 >= next_record:

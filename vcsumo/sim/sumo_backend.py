@@ -226,7 +226,8 @@ class SumoBackend:
 
     @_traci
     def emergency_stops(self) -> list[str]:
-        """Trains that braked harder than their service deceleration in this step."""
+        """Trains SUMO stopped within one step this step ('performs emergency stop': at the end of a
+        lane, e.g. a red signal passed at speed or the end of the track)."""
         return list(self._ls.simulation.getEmergencyStoppingVehiclesIDList())
 
     @_traci
