@@ -97,7 +97,7 @@ def write_sumocfg(path: Path, args: list[str], out: Path) -> None:
             parts.append(v)
         ET.SubElement(root, key, value=",".join(parts))
     ET.indent(root)
-    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (tunnel vType switching and vcsumo drivers are not replayed) -->\n' + ET.tostring(root, encoding="unicode") + "\n")
+    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (SUMO alone: the braking-curve supervision, tunnel vType switching and VC drivers are not replayed) -->\n' + ET.tostring(root, encoding="unicode") + "\n")
 
 
 # -------------------------------------------------------------------------------------------
