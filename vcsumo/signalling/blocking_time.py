@@ -89,7 +89,8 @@ def fbs_blocking_times(run: pd.DataFrame, signals_s: list[float], route_end_s: f
     Blocks whose approach point lies before the run's start are approached at the start (the
     follower is released there).  ``approach_offset_m``: the follower must be able to stop this far
     before a signal (its position error); ``clear_offset_m``: the rear of the train ahead must be
-    this far beyond the block's end before the block is released (overlap, position error).
+    this far beyond the block's end before the block is released (overlap, position error).  A train
+    releases every block it still occupies when it leaves the route at ``route_end_s``.
     """
     s = run["s_m"].to_numpy()
     v = run["speed_mps"].to_numpy()
@@ -101,7 +102,8 @@ def fbs_blocking_times(run: pd.DataFrame, signals_s: list[float], route_end_s: f
     for start, end in zip(sig, ends):
         a = max(_approach_point(s, v, rule, start, reach), s0)
         t_app = float(time_at(run, a)[0])
-        clear = end + clear_offset_m + length_m
+        # a train leaving the route (its front at the end) releases every block it still occupies
+        clear = min(end + clear_offset_m + length_m, route_end_s)
         t_clr = float(time_at(run, min(clear, float(s[-1])))[0])
         if clear > s[-1] + 1e-6:
             # the run ends before the tail clears: extrapolate at the last speed

@@ -47,15 +47,15 @@ from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.timetable import PlannedTrain
 
-SPEED_TOL_ABS_MPS = 0.1
-SPEED_TOL_REL = 0.001
+SPEED_TOL_ABS_MPS = 0.03
+SPEED_TOL_REL = 0.0
 """A follower counts as hindered where it runs slower than the leader at the same position by more
-than max(0.1 m/s, 0.1 %): SUMO is deterministic, so identical unhindered trains agree far better,
-and a looser tolerance lets a braking curve bind briefly unseen (theory counts it)."""
-DEFICIT_WINDOW_S = 3.0
+than 0.03 m/s: SUMO is deterministic, so identical unhindered trains agree to the interpolation
+between their samples (well below that), and any braking curve that binds shows at once."""
+DEFICIT_WINDOW_S = 0.5
 """Speeds are compared up to where the follower is this long after the measuring point, s: theory
 counts every block whose approach point lies before the point, and a braking curve that starts to
-bind there shows a measurable speed deficit (0.3 m/s) only a moment later."""
+bind there shows a deficit of 0.03 m/s within about one step."""
 
 HEADWAY_COLUMNS = [
     "line", "direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s",
@@ -120,12 +120,12 @@ def prepare_case(line: Line, net: BuiltNetwork, stock: RollingStock, direction: 
 
 
 def analytic_headways(net: BuiltNetwork, trains: list[PlannedTrain], prof: RouteProfile, run: pd.DataFrame, regime: str, stock: RollingStock, step_s: float,
-                      model: SeparationModel) -> Callable[[float], tuple[float, float]]:
+                      model: SeparationModel, route_end_m: float | None = None) -> Callable[[float], tuple[float, float]]:
     """Function x_m -> (analytic headway s, critical position m) of the regime at measuring point x."""
     signals = prof.signal_positions(net.topology)
 
     def at(x: float) -> tuple[float, float]:
-        res = REGIMES[regime].analytic_headway(HeadwayInputs(model, stock, prof, run, signals, step_s, x))
+        res = REGIMES[regime].analytic_headway(HeadwayInputs(model, stock, prof, run, signals, step_s, x, route_end_m))
         return res.headway_s, res.critical_m
 
     return at
@@ -161,7 +161,7 @@ def run_headway_case(
     # (the trains leave at speed, so the leader's run is recomputed on that route)
     run_cut = unhindered_run(stock.params(), cut, dt=step_s, s0=trains0[0].start_s_m, v0=v0, end_s=float(cut.starts_m[-1]) + end_pos, stop_at_end=False,
                              curve=RouteBraking(model, stock, cut).curve(1.5 * step_s))
-    analytic = analytic_headways(net, trains0, cut, run_cut, regime, stock, step_s, model)
+    analytic = analytic_headways(net, trains0, cut, run_cut, regime, stock, step_s, model, route_end_m=float(cut.starts_m[-1]) + end_pos)
     guesses = {lab: analytic(x)[0] for lab, _, x in pts}
     mps = [MeasuringPoint(lab, "main", k) for lab, k, _ in pts]
     probes_run = [0]

@@ -56,6 +56,12 @@ class HeadwayInputs:
     step_s: float
     s_check_m: float
     """The headway is the largest blocking time met between the release point and here."""
+    route_end_m: float | None = None
+    """Where the trains leave the route (None: the end of ``profile``)."""
+
+    @property
+    def end_m(self) -> float:
+        return self.profile.length_m if self.route_end_m is None else self.route_end_m
 
     def braking(self) -> SupervisedBraking:
         return SupervisedBraking(self.model, self.stock, self.profile, self.step_s)

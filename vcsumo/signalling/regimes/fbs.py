@@ -26,7 +26,7 @@ class FixedBlock(Regime):
     def analytic_headway(self, inp: HeadwayInputs, convoy_size: int = 1) -> AnalyticHeadway:
         a = inp.model.assumptions
         length = convoy_size * inp.stock.length_m
-        blocks = fbs_blocking_times(inp.run, inp.signals_m, inp.profile.length_m, length, inp.braking(),
+        blocks = fbs_blocking_times(inp.run, [x for x in inp.signals_m if x < inp.end_m - 1e-6], inp.end_m, length, inp.braking(),
                                     approach_offset_m=a.position_error_m, clear_offset_m=a.overlap_m + a.position_error_m)
         sel = blocks[blocks.approach_m <= inp.s_check_m]
         if sel.empty:  # nothing approached yet: the first block is the first constraint
