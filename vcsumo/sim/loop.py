@@ -45,6 +45,7 @@ from vcsumo.signalling.regimes import REGIMES, Regime
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.health import HealthMonitor
 from vcsumo.sim.network import BuiltNetwork
+from vcsumo.sim.interlocking import MergeLocking
 from vcsumo.sim.supervision import BrakingCurveSupervisor
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
 from vcsumo.sim.sumo_io import read_sumo_log, write_sumocfg
@@ -115,6 +116,8 @@ class Scenario:
     authorities of the trains SUMO drives, s (None: the assumption set's)."""
     rules: Regime | None = field(default=None, init=False, repr=False)
     """The registered regime named by ``regime`` (set on construction)."""
+    merge_orders: dict[str, list[str]] = field(default_factory=dict)
+    """Junction node -> train ids in the order they must pass it (default: first come, first served)."""
     supervise: bool = True
     """Braking-curve supervision of the trains SUMO drives (off only to show what SUMO alone does)."""
     full_outputs: bool = True
@@ -199,10 +202,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     dt = scn.step_length_s
     model = SeparationModel(scn.assumptions)
     health = HealthMonitor(model, scn.trains)
-    supervisor = None
+    supervisor = locking = None
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
-        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals)
+        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders)
+        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
     capped: set[str] = set()
@@ -224,7 +228,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if s_mp > tr.plan.start_s_m:
                         tr.mp_s[mp.label] = s_mp
                 state[vid] = tr
-            for vid in sim.arrived():
+            arrived_now = sim.arrived()
+            for vid in arrived_now:
                 if vid in state:
                     state[vid].arrived_at = t
             active = [v for v in sim.train_ids() if v in state]
@@ -259,6 +264,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if lead is None and len(others) > 1:
                     lead = sim.route_leader(vid, others, scn.lookahead_m)
                 gap = lead[1] if lead else math.inf
+                if lead is not None and locking is not None and lead[0] in state:
+                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
+                    if g is not None:
+                        gap = g
                 tr.min_gap = min(tr.min_gap, gap)
                 controlled = tr.controlled and scn.driver is not None
                 perm = None
@@ -281,6 +290,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     tr_v.append(ob.speed_mps)
                 section, km = prof.km_at(tr.s)
                 snap_trains[vid] = TrainState(vid, t, tr.s, section, km, ob.speed_mps, ob.accel_mps2, ob.edge, lead[0] if lead else None, gap)
+            if locking is not None:  # approach locking at merges (used by the supervision from the next step)
+                locking.arrived(arrived_now)
+                for sig, train, foe in locking.update({vid: (ts.s_m, ts.speed_mps) for vid, ts in snap_trains.items()}):
+                    sim.add_constraint(sig, train, sig, foe)
             emergency_now = set(sim.emergency_stops())
             for vid in active:
                 if vid in state:

@@ -16,7 +16,8 @@ would run faster.  Targets:
   for ever; one that ends beyond it hands SUMO a train too fast to stop and SUMO skips the stop:
   both seen on the graded regional line);
 * the end of its route where it has to stop there (end of track);
-* its **end of movement authority** (the regime's): FBS — the last signal at least ``overlap_m``
+* its **end of movement authority** — a merging junction it has to wait at
+  (:mod:`vcsumo.sim.interlocking`), and the regime's: FBS — the last signal at least ``overlap_m``
   behind the rear of the train ahead (ETCS L2 with overlap); MB — the rear of the train ahead as
   of its last position report, minus the safety margin and the position error of both trains
   (ETCS L3).  These use the assumption set's dead time (reaction + half the brake build-up); the
@@ -77,7 +78,7 @@ class BrakingCurveSupervisor:
     """Permitted speeds of the trains SUMO drives under ``regime`` ('fbs' or 'mb')."""
 
     def __init__(self, model: SeparationModel, regime: str, trains: list[PlannedTrain], step_s: float, signals: dict[str, list[float]] | None = None,
-                 fixed_time_s: float | None = None):
+                 fixed_time_s: float | None = None, locking=None):
         if regime not in ("fbs", "mb"):
             raise ValueError(f"braking-curve supervision of regime '{regime}' (fbs or mb)")
         self.model = model
@@ -85,6 +86,8 @@ class BrakingCurveSupervisor:
         self.step_s = step_s
         self.fixed_time_s = model.assumptions.fixed_time_s if fixed_time_s is None else fixed_time_s
         self.curves: dict[str, _Curves] = {}
+        self.locking = locking
+        """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
         for t in trains:
             stops = [x.s_m for x in t.stops]
@@ -195,6 +198,8 @@ class BrakingCurveSupervisor:
             if vp < best:
                 best, reason = vp, "end"
         d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s)
+        if self.locking is not None:
+            d_ma = min(d_ma, self.locking.authority_distance(train_id, s_m))
         if d_ma <= reach:
             vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
             if vp < best:
