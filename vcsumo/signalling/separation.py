@@ -273,32 +273,43 @@ class RouteBraking:
       analytic headways).
     """
 
-    def __init__(self, model: "SeparationModel", stock: RollingStock, profile, kind: str | None = None):
+    def __init__(self, model: "SeparationModel", stock: RollingStock, profile, kind: str | None = None, strongest: bool = False):
         self.model = model
         self.stock = stock
         self.kind = kind or model.assumptions.absolute_braking
+        self.strongest = strongest
         a = model.assumptions
-        low, _ = brake_range(stock, a, self.kind)
+        low, high = brake_range(stock, a, self.kind)
         box = stock.uncertainty
         self.m_high = stock.mass_kg if box is None else box.mass_kg.high
-        self.brake_low = low
+        self.m_low = stock.mass_kg if box is None else box.mass_kg.low
+        self.brake_low = high if strongest else low
         self.power_low = None
-        if stock.max_brake_power_w is not None:
+        if stock.max_brake_power_w is not None and not strongest:
             self.power_low = stock.max_brake_power_w if box is None or box.max_brake_power_w is None else box.max_brake_power_w.low
         self.res_low = (stock.davis_a_n if box is None else box.davis_a_n.low) / self.m_high
-        self.rho = stock.rotating_mass_factor
+        self.params_high = stock.params()
+        if box is not None:
+            self.params_high = self.params_high.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
+        self.rho = 1.0 if strongest else stock.rotating_mass_factor
         starts = np.asarray(profile.starts_m, dtype=float)
         lengths = np.asarray(profile.lengths_m, dtype=float)
-        g_low = np.array([min(profile.gradient_range(x - stock.length_m, x + ln)[0], 0.0) for x, ln in zip(starts, lengths)])
+        if strongest:  # the steepest up-grade under the body helps the train ahead; a descent is not counted
+            g_low = np.array([max(profile.gradient_range(x - stock.length_m, x + ln - 1e-6)[1], 0.0) for x, ln in zip(starts, lengths)])
+        else:  # the lowest gradient under the body while the front is on the edge (not the next one)
+            g_low = np.array([min(profile.gradient_range(x - stock.length_m, x + ln - 1e-6)[0], 0.0) for x, ln in zip(starts, lengths)])
         self.x = np.concatenate([starts, [starts[-1] + lengths[-1]]])
         self.g_low = g_low
         self.grade_integral = np.concatenate([[0.0], np.cumsum(g_low * lengths)])
         worst = self.brake_part(stock.max_speed_ms) + G * float(g_low.min()) / self.rho
-        if worst <= 0.0:
+        if worst <= 0.0 and not strongest:
             raise ValueError(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
 
     def brake_part(self, v_mps: float) -> float:
-        """Guaranteed deceleration without the gradient at speed v, m/s²."""
+        """Guaranteed (strongest: hardest) deceleration without the gradient at speed v, m/s²; the
+        strongest counts the whole running resistance at v (it only falls as the train slows)."""
+        if self.strongest:
+            return self.brake_low + float(running_resistance(self.params_high, v_mps, 1.5)) / self.m_low
         b = self.brake_low
         if self.power_low is not None:
             b = min(b, self.power_low / (self.m_high * max(v_mps, 0.1)))
@@ -357,3 +368,61 @@ class RouteBraking:
             return self.permitted_speed(s_m, target_m, target_speed_mps, dead_time_s, v_mps)
 
         return f
+
+
+# -------------------------------------------------------------------------------------------
+# Relative braking along a route (the VC guard and the run-health monitor of coupled followers)
+
+
+class RelativeBraking:
+    """The relative-braking rule for one follower behind one leader, on the follower's route.
+
+    Both trains brake on the route's gradient profile (:class:`RouteBraking`): the follower with its
+    guaranteed relative-braking brake after the dead time, the leader with its strongest, from its
+    worst state.  When the follower cannot out-brake the leader anywhere (its best guaranteed
+    deceleration on level track is below the leader's hardest brake alone), the closing is largest
+    when both stand, and the rule is the stopping-point form — exact on the gradient profile and
+    continuous in position.  Otherwise (a light follower behind a heavy leader) the worst moment may
+    be mid-braking: the rule is :func:`relative_braking_gap` with the weakest follower and hardest
+    leader decelerations over their braking distances.
+    """
+
+    def __init__(self, model: SeparationModel, follower: RollingStock, leader: RollingStock, profile):
+        kind = model.assumptions.relative_braking
+        self.model = model
+        self.follower = RouteBraking(model, follower, profile, kind)
+        self.leader = RouteBraking(model, leader, profile, kind, strongest=True)
+        self.profile = profile
+        _, high_l = brake_range(leader, model.assumptions, kind)
+        self.never_outbrakes = self.follower.brake_part(0.0) <= high_l
+
+    def closing(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
+        """How much the front-to-rear gap closes in the worst case from now, m (≥ 0)."""
+        d_f = self.follower.stopping_distance(s_f, v_f, dead_time_s)
+        d_l = self.leader.stopping_distance(s_l, v_l, 0.0)
+        if self.never_outbrakes:
+            return max(0.0, d_f - d_l)  # stopping points: the gap is smallest when both stand
+        a_f = min(self.follower.decel_at(x, v_f) for x in (s_f, s_f + d_f))
+        a_l = max(self.leader.decel_at(x, v_l) for x in (s_l, s_l + d_l))
+        return relative_braking_gap(v_f, v_l, max(a_f, 1e-3), a_l, dead_time_s)
+
+    def required_gap(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
+        """Front-to-rear gap the follower needs: the closing plus margin and position errors, m."""
+        return self.model.margin_m + self.closing(s_f, v_f, s_l, v_l, dead_time_s)
+
+    def max_speed(self, s_f: float, gap_m: float, s_l: float, v_l: float, dead_time_s: float, v_max: float, tol_mps: float = 0.01) -> float:
+        """Largest follower speed in [0, v_max] that keeps the rule with ``gap_m`` to the leader's
+        rear (``s_l``: the leader's front), m/s."""
+        room = gap_m - self.model.margin_m
+        if room < 0.0:
+            return 0.0
+        if self.closing(s_f, v_max, s_l, v_l, dead_time_s) <= room:
+            return v_max
+        lo, hi = 0.0, v_max
+        while hi - lo > tol_mps:
+            mid = 0.5 * (lo + hi)
+            if self.closing(s_f, mid, s_l, v_l, dead_time_s) <= room:
+                lo = mid
+            else:
+                hi = mid
+        return lo
