@@ -146,13 +146,13 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     net = network(line, block_length_m)
     trains = plan_trains(tt, tt_path, line, net.topology, dt=step_length)
     driver = None
+    aset = load_assumptions(assumptions)
     if regime == "vc":
         from vcsumo.sim.vc_driver import make_vc_driver
 
-        driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed, channel=channel)
+        driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed, channel=channel, assumptions=aset)
     elif controller or channel:
         raise VcsumoError(f"--controller/--channel: only the vc regime takes a controller and a channel (regime is {regime})")
-    aset = load_assumptions(assumptions)
     out = out or default_out("run", f"{line.name}-{tt.name}-{regime}")
     with ResultsFolder(out, inputs={"line": line.path, "timetable": tt_path}, seed=seed,
                        params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m,

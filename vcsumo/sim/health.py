@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from vcsumo.signalling.separation import RouteBraking, SeparationModel, relative_braking_gap, strongest_decel
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, strongest_decel
 from vcsumo.timetable import PlannedTrain
 
 GAP_TOLERANCE_M = 0.01
@@ -65,6 +65,7 @@ class HealthMonitor:
         self.plans = {t.id: t for t in trains}
         self.trains: dict[str, TrainHealth] = {t.id: TrainHealth() for t in trains}
         self.braking = {t.id: RouteBraking(model, t.stock, t.profile) for t in trains}
+        self.relative: dict[tuple[str, str], RelativeBraking] = {}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
         self.collision_rows: list[tuple] = []
 
@@ -75,21 +76,18 @@ class HealthMonitor:
         between its rear and where it stops, after the dead time)."""
         return self.model.margin_m + self.braking[train_id].stopping_distance(s_m, v_mps, self.model.dead_time_s)
 
-    def relative_gap(self, train_id: str, s_m: float, v_mps: float, leader_id: str, leader_s_m: float, leader_v_mps: float) -> float:
-        """The safe separation of a virtually coupled follower behind ``leader_id`` (relative braking
-        on the true states, no message age), m; ``leader_s_m`` is the leader's front in its own frame."""
-        p, pl = self.plans[train_id], self.plans.get(leader_id)
+    def relative_gap(self, train_id: str, s_m: float, v_mps: float, leader_id: str, gap_m: float, leader_v_mps: float) -> float:
+        """The safe separation of a virtually coupled follower behind ``leader_id`` (the separation
+        model's relative braking on the true states, no message age), m."""
+        pl = self.plans.get(leader_id)
         if pl is None:
             return self.absolute_gap(train_id, s_m, v_mps)
-        h = self.trains[train_id]
-        g_low, _ = p.profile.gradient_range(s_m - p.stock.length_m, s_m + v_mps * v_mps / (2 * 0.5) + v_mps * self.model.dead_time_s)
-        _, g_high = pl.profile.gradient_range(leader_s_m - pl.stock.length_m, leader_s_m + leader_v_mps * leader_v_mps / 2.0)
-        key = ("rel", leader_id, round(g_low, 5), round(g_high, 5), int(v_mps * 2), int(leader_v_mps * 2))
-        dec = h._cache.get(key)
-        if dec is None:
-            dec = self.model.vc_decels(p.stock, pl.stock, v_mps, leader_v_mps + 0.5, g_low, g_high)
-            h._cache[key] = dec
-        return self.model.margin_m + relative_braking_gap(v_mps, leader_v_mps, dec[0], dec[1], self.model.dead_time_s)
+        rule = self.relative.get((train_id, leader_id))
+        if rule is None:
+            p = self.plans[train_id]
+            rule = self.relative[(train_id, leader_id)] = RelativeBraking(self.model, p.stock, pl.stock, p.profile)
+        s_l = s_m + gap_m + pl.stock.length_m  # the leader's front in the follower's route frame
+        return rule.required_gap(s_m, v_mps, s_l, leader_v_mps, self.model.dead_time_s)
 
     def _service_limit(self, train_id: str, s_m: float, v_mps: float) -> float:
         p = self.plans[train_id]

@@ -92,6 +92,9 @@ class Driver(Protocol):
         """Speed commands (m/s) for the trains it drives this step; other trains stay with SUMO."""
         ...
 
+    def predecessor_of(self, train_id: str) -> str | None:
+        """The train a follower is coupled behind (None: not a convoy follower)."""
+        ...
 
 
 @dataclass
@@ -161,6 +164,8 @@ class _Track:
     min_gap: float = math.inf
     in_emergency: bool = False
     emergencies: int = 0
+    released_s: float = math.nan
+    """When the driver last handed the train back to SUMO (nan: never)."""
     controlled: bool = False
     mp_s: dict[str, float] = field(default_factory=dict)
     departed_at: float = math.nan
@@ -270,13 +275,16 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         gap = g
                 tr.min_gap = min(tr.min_gap, gap)
                 controlled = tr.controlled and scn.driver is not None
+                if scn.driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
+                    # before the driver's first decision a follower behind its own predecessor counts as coupled
+                    controlled = scn.driver.predecessor_of(vid) == lead[0]
                 perm = None
                 if supervisor is not None:
                     supervisor.observe(vid, t, ob.odometer_m)
                     if not controlled:
                         perm = supervisor.permitted(vid, t, tr.s, ob.speed_mps, gap, lead[0] if lead else None)
                 if lead is not None and lead[0] in obs and controlled:
-                    required = health.relative_gap(vid, tr.s, ob.speed_mps, lead[0], state[lead[0]].s, obs[lead[0]].speed_mps)
+                    required = health.relative_gap(vid, tr.s, ob.speed_mps, lead[0], gap, obs[lead[0]].speed_mps)
                 else:
                     required = health.absolute_gap(vid, tr.s, ob.speed_mps)
                 if health.update(vid, dt, tr.s, ob.speed_mps, ob.accel_mps2, gap, required, perm.authority_m if perm else math.inf, not controlled):
@@ -339,6 +347,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if tr.controlled and vid not in commands and vid in snap_trains:
                         sim.release(vid)
                         tr.controlled = False
+                        tr.released_s = t
+                    elif not tr.controlled and vid not in commands and vid in snap_trains and math.isnan(tr.released_s) and tr.departed_at < t:
+                        tr.released_s = t  # the driver decided not to drive it
             if progress is not None:
                 progress(t - begin, end - begin)
             if sim.min_expected() == 0 or t >= end - 1e-9:

@@ -62,6 +62,8 @@ from vcsumo.control.faults import FAULT_KINDS, faults_frame
 from vcsumo.control.guard import GuardConfig, load_guard
 from vcsumo.control.params import resolve_params
 from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.separation import SeparationModel
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError
@@ -184,6 +186,8 @@ class _Follower:
     next_stop: int = 0
     stop_handovers: int = 0
     at_stop: bool = False
+    linked: bool = False
+    """The link to the predecessor is up (set at the first step both run)."""
 
     @property
     def stage(self):
@@ -200,8 +204,9 @@ class VCDriver:
 
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
                  cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
-                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0):
+                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None):
         self.name, self.params_spec = parse_controller(controller)
+        self.assumptions = assumptions or load_assumptions()
         self.step_s = step_s
         self.channel = Channel((channel or ChannelConfig(model="ideal", period_s=step_s)).model_copy(update={"seed": seed}))
         self.plan_horizon_s = plan_horizon_s
@@ -226,7 +231,7 @@ class VCDriver:
                 ego.shares_platforms = True
                 stack = build_follower_stack(controller, StackContext(
                     ego=ego.stock, predecessor=pred.stock, step_s=step_s, profile=ego.profile, supervisor_params=cbf_config, guard=self.guard,
-                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s))
+                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions))
                 frames = {}
                 for other in members:
                     if other.id != ego.id:
@@ -243,7 +248,8 @@ class VCDriver:
                     plats.append(0.0)
                 self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params())
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
-        arrange_convoy_departures(convoys, {fid: f.d_min + 2.0 for fid, f in self.followers.items()})
+        margin = SeparationModel(self.assumptions).margin_m  # standing behind a train: margin and position errors
+        arrange_convoy_departures(convoys, {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()})
 
     # -----------------------------------------------------------------------------------
     def _send(self, snap: Snapshot) -> None:
@@ -309,6 +315,15 @@ class VCDriver:
             if st is None:
                 continue
             fr = f.frames.get(f.pred.id)
+            if not f.linked and pst is not None and fr is not None:
+                # the link is up when a convoy starts (its members formed it standing, or were released formed):
+                # the follower holds its predecessor's state from the first step both run
+                f.linked = True
+                if f.pred.id not in received:
+                    received = {**received, f.pred.id: Message(sender=f.pred.id, sent_time_s=t, length_m=f.pred.stock.length_m,
+                                                               state=TrainStateMsg(t, pst.s_m + fr.offset_m, pst.speed_mps, pst.accel_mps2, 0.0),
+                                                               received_time_s=t)}
+                    self.channel.remember(fid, received[f.pred.id])
             coupled = (
                 pst is not None and fr is not None and pst.s_m - f.pred.stock.length_m <= fr.shared_end_a_m and st.s_m <= fr.shared_end_b_m
                 and (pst.s_m + fr.offset_m) - f.pred.stock.length_m > st.s_m  # the predecessor is ahead
@@ -399,6 +414,10 @@ class VCDriver:
         return commands
 
     # -----------------------------------------------------------------------------------
+    def predecessor_of(self, train_id: str) -> str | None:
+        f = self.followers.get(train_id)
+        return f.pred.id if f is not None else None
+
     def safe_gap_m(self, train_id: str) -> float:
         f = self.followers.get(train_id)
         return f.d_min if f is not None else 50.0
@@ -456,8 +475,9 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
 
 
 def make_vc_driver(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain], controller: str, step_s: float, seed: int = 42,
-                   channel: str | Path | None = None, cbf_config: str | None = None, guard: str | Path | None = None) -> VCDriver:
+                   channel: str | Path | None = None, cbf_config: str | None = None, guard: str | Path | None = None,
+                   assumptions: AssumptionSet | None = None) -> VCDriver:
     """Build the vc driver for a timetable's convoys (errors name the timetable or the controller)."""
     parse_controller(controller)
     convoys = convoys_from_timetable(tt, tt_path, trains)
-    return VCDriver(convoys, controller, step_s, seed, load_channel(channel), cbf_config, guard=load_guard(guard))
+    return VCDriver(convoys, controller, step_s, seed, load_channel(channel), cbf_config, guard=load_guard(guard), assumptions=assumptions)

@@ -222,7 +222,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         if case.regime == "vc":
             from vcsumo.sim.vc_driver import VCDriver, load_channel
 
-            driver = VCDriver(units, case.controller, dt, seed, load_channel(None))
+            driver = VCDriver(units, case.controller, dt, seed, load_channel(None), assumptions=assumptions)
         probes[0] += 1
         sim = simulate(Scenario(line, net, trains, case.regime, step_length_s=dt, measuring_points=mps, record_period_s=3600.0,
                                 full_outputs=False, trace_speeds=True, driver=driver, seed=seed, assumptions=assumptions), out / "probes" / f"h{h:08.3f}")
