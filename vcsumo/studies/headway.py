@@ -52,10 +52,10 @@ SPEED_TOL_REL = 0.0
 """A follower counts as hindered where it runs slower than the leader at the same position by more
 than 0.03 m/s: SUMO is deterministic, so identical unhindered trains agree to the interpolation
 between their samples (well below that), and any braking curve that binds shows at once."""
-DEFICIT_WINDOW_S = 0.5
+DEFICIT_WINDOW_S = 1.0
 """Speeds are compared up to where the follower is this long after the measuring point, s: theory
 counts every block whose approach point lies before the point, and a braking curve that starts to
-bind there shows a deficit of 0.03 m/s within about one step."""
+bind there shows a deficit of 0.03 m/s one step later (the cap applies from the next step)."""
 
 HEADWAY_COLUMNS = [
     "line", "direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s",
