@@ -440,17 +440,26 @@ _add_verbosity_options(cli)
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     setup_logging(0, console)
+    from vcsumo.engine.campaign import Interrupted, sigterm_as_interrupt
+
     try:
-        cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
+        with sigterm_as_interrupt():  # SIGTERM (timeout, kill) cleans up like Ctrl-C
+            cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
     except VcsumoError as exc:
         console.print(f"error: {exc}", highlight=False, markup=False, soft_wrap=True)
-        return 2
-    except click.exceptions.Abort:
-        console.print("aborted")
+        return getattr(exc, "exit_code", 2)  # 2: bad input; 1: the command ran but every case failed
+    except click.exceptions.Abort as exc:
+        if isinstance(exc.__cause__, Interrupted):  # click turns KeyboardInterrupt into Abort
+            console.print("terminated")
+            return 128 + exc.__cause__.signum
+        console.print("interrupted" if isinstance(exc.__cause__, KeyboardInterrupt) else "aborted")
         return 130
     except click.exceptions.ClickException as exc:
         exc.show()
         return exc.exit_code
+    except Interrupted as exc:
+        console.print("terminated")
+        return 128 + exc.signum
     except KeyboardInterrupt:
         console.print("interrupted")
         return 130
