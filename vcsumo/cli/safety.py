@@ -80,6 +80,8 @@ def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers:
     out_console.print(f"wrote {out / 'safety.csv'} and {out / 'report'}")
     failed = df[df["error"] != ""]
     for _, r in failed.drop_duplicates("error").head(5).iterrows():
-        out_console.print(f"  failed: {r['scenario']} {r['controller']}: {r['error']}", markup=False, highlight=False)
+        same = int((failed["error"] == r["error"]).sum())
+        more = f" (and {same - 1} more runs with this error)" if same > 1 else ""
+        out_console.print(f"  failed: {r['scenario']} {r['controller']}: {r['error']}{more}", markup=False, highlight=False)
     if len(df) == 0 or len(failed) == len(df):
         raise CampaignFailed(f"every run of the safety campaign failed ({len(failed)} of {len(df)}; errors above and in {out / 'safety.csv'})")

@@ -397,6 +397,15 @@ def _connect(address: str, timeout_s: float, worker_wait_s: float):
         from distributed import Client
     except ImportError:  # pragma: no cover - dask[distributed] is a dependency
         raise VcsumoError("--scheduler: dask.distributed is not installed (pip install 'dask[distributed]')") from None
+    if address.startswith("tcp://"):  # nothing listening: say so at once (the client would retry until its timeout)
+        import socket
+        from urllib.parse import urlsplit
+
+        try:
+            u = urlsplit(address)
+            socket.create_connection((u.hostname, u.port or 8786), timeout=timeout_s).close()
+        except (OSError, ValueError) as exc:
+            raise VcsumoError(f"--scheduler: cannot connect to the Dask scheduler at {address}: {error_message(exc)}") from None
     try:
         client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
     except Exception as exc:  # noqa: BLE001 - refused, unreachable, not a scheduler
