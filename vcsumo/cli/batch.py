@@ -13,7 +13,7 @@ from pathlib import Path
 
 import click
 
-from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
+from vcsumo.cli.ui import out_console, print_table, progress_bar
 
 from vcsumo.errors import InputError
 
