@@ -185,6 +185,30 @@ def test_a_safety_campaign_in_which_every_run_fails_exits_1(tmp_path, capsys):
     assert "colour: unknown key" in cap.out and (tmp_path / "s" / "report" / "safety_summary.csv").is_file()
 
 
+def test_a_capacity_study_in_which_every_case_fails_exits_1(tmp_path, capsys, monkeypatch):
+    """Fault injection as in test_capacity: every case raises (in this process, --workers 1)."""
+    from vcsumo.errors import VcsumoError
+    from vcsumo.studies import capacity
+
+    def run_case(*a, **k):
+        raise VcsumoError("no sustainable headway found (test)")
+
+    monkeypatch.setattr(capacity, "run_case", run_case)
+    out = tmp_path / "cap"
+    assert main([*CAPACITY, "--workers", "1", "--out", str(out)]) == 1
+    cap = capsys.readouterr()
+    assert "error: every case of the capacity study failed (5 of 5;" in cap.err
+    assert cap.out.count("no sustainable headway found (test)") >= 4
+    assert pd.read_csv(out / "capacity.csv").error.str.contains("no sustainable headway").all()
+
+
+def test_a_capacity_study_without_cases_is_an_input_error(in_tmp, capsys):
+    """felez_test has no intermediate station: an all-stops study has nothing to run."""
+    assert main(["study", "capacity", "--line", "felez_test", "--patterns", "all-stops", "--out", "c"]) == 2
+    assert "--patterns: no case to run" in capsys.readouterr().err
+    assert not any(in_tmp.iterdir())
+
+
 @pytest.mark.parametrize("cmd", [
     ["batch", "--line", "felez_test", "--timetables", "test", "--regimes", "fbs", "--seeds", "1"],
     CAPACITY,
