@@ -149,12 +149,17 @@ def test_a_second_batch_into_the_same_folder_is_refused_while_the_first_runs(tmp
     first = vcsumo(*args)
     try:
         wait_for(lambda: (out / ".vcsumo.lock.owner").is_file(), what="the first batch to hold the folder")
-        t0 = time.monotonic()
-        assert main(args) == 2
-        assert time.monotonic() - t0 < 30
+        first.send_signal(signal.SIGSTOP)  # frozen mid-batch: it holds the folder however slow the second one is
+        try:
+            t0 = time.monotonic()
+            assert main(args) == 2
+            assert time.monotonic() - t0 < 30
+        finally:
+            first.send_signal(signal.SIGCONT)
         err = capsys.readouterr().err
         assert f"another vcsumo command is writing into this folder (pid {first.pid} " in err and "choose another --out" in err
-        assert first.wait(300) == 0
+        first.communicate(timeout=300)
+        assert first.returncode == 0
     finally:
         first.kill()
     assert main(args) == 0
