@@ -97,7 +97,6 @@ def test_import_graph_is_acyclic():
     assert not cycles, "\n".join(cycles)
 
 
-@IN_PROGRESS
 def test_no_private_name_used_outside_its_module():
     mods = _modules()
     bad = []

@@ -253,7 +253,7 @@ def test_default_folder_is_the_same_for_the_same_command(in_tmp):
 
     from vcsumo.cli.batch import batch_cmd
 
-    args = ["--line", "felez_test", "--timetables", "test", "--regimes", "mb", "--seeds", "1", "--workers", "0"]
+    args = ["--line", "felez_test", "--timetables", "test", "--regimes", "mb", "--seeds", "1", "--workers", "1"]
     first = CliRunner().invoke(batch_cmd, args, catch_exceptions=False)
     assert first.exit_code == 0 and "1 run now, 0 already" in first.output, first.output
     made = list((in_tmp / "results").iterdir())

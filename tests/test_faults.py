@@ -386,7 +386,7 @@ def test_batch_with_a_killed_worker_keeps_the_other_runs(tmp_path):
 ORPHAN_SCRIPT = """
 import multiprocessing, os, sys, time
 from concurrent.futures import ProcessPoolExecutor
-from vcsumo.studies.batch import silence_worker
+from vcsumo.engine.campaign import silence_worker
 def work(x):
     time.sleep(60)
     return x

@@ -50,7 +50,7 @@ def results(tmp_path_factory) -> Path:
     assert main(["-q", "run", "--line", "felez_test", "--timetable", str(tt), "--regime", "mb", "--out", str(base / "many")]) == 0
     assert main(["-q", "study", "capacity", "--line", "felez_test", "--controllers", "cbc", "--convoy-sizes", "1,2", "--directions", "up",
                  "--patterns", "non-stop", "--workers", "1", "--out", str(base / "cap")]) == 0
-    assert main(["-q", "batch", "--line", "felez_test", "--timetables", "convoy", "--regimes", "fbs,mb", "--seeds", "2", "--workers", "0",
+    assert main(["-q", "batch", "--line", "felez_test", "--timetables", "convoy", "--regimes", "fbs,mb", "--seeds", "2", "--workers", "1",
                  "--out", str(base / "batch")]) == 0
     assert main(["-q", "study", "safety", "--scenarios", "3", "--controllers", "cbc,cbf-cbc", "--workers", "1", "--out", str(base / "safety")]) == 0
     return base

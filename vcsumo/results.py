@@ -1,7 +1,12 @@
 """Results folders: written completely or not at all, with the inputs and versions recorded.
 
 A command writes into ``<out>.partial-<pid>`` and renames it to ``<out>`` only when everything is
-written; on any error the partial folder is removed, so a results folder on disk is always whole.
+written; on any error (and on SIGINT or SIGTERM, which the command line turns into
+``KeyboardInterrupt``) the partial folder is removed, so a results folder on disk is always whole,
+and folders the command created around it (an empty ``results/``) are removed too.  A process
+killed outright (SIGKILL) cannot clean up: its ``<out>.partial-<pid>`` is removed by the next
+command writing to the same place, once no process with that pid is alive
+(:func:`remove_stale_partials`).
 ``meta.json`` records the command, the input files (with their SHA-256), the versions of vcsumo,
 SUMO, CasADi, numpy, pandas and Python, the seed and the wall time.
 """
@@ -74,6 +79,71 @@ def file_digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this pid exists on this machine."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+_PARTIAL = re.compile(r"^(?P<name>.+)\.partial-(?P<pid>\d+)$")
+
+
+def remove_stale_partials(folder: Path, name: str | None = None, pids: set[int] | None = None) -> list[Path]:
+    """Remove ``<name>.partial-<pid>`` entries of ``folder`` left by processes that are gone.
+
+    ``name``: only the partials of that results folder (default: every one in ``folder``);
+    ``pids``: only those of these processes (known dead), else those whose pid is not alive.
+    Returns what was removed.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = []
+    for p in folder.iterdir():
+        m = _PARTIAL.match(p.name)
+        if not m or (name is not None and m["name"] != name):
+            continue
+        pid = int(m["pid"])
+        if pid == os.getpid() or (pids is not None and pid not in pids) or (pids is None and pid_alive(pid)):
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+        removed.append(p)
+    return removed
+
+
+def write_meta(folder: Path, inputs: dict[str, Path] | None = None, seed: int | None = None, params: dict[str, Any] | None = None,
+               wall_time_s: float = 0.0, extra: dict[str, Any] | None = None) -> None:
+    """``meta.json`` of a results folder: command, time, versions, inputs with SHA-256, seed, parameters."""
+    inputs = dict(inputs or {})
+    study = os.environ.get("VCSUMO_STUDY_FILE")
+    if study:
+        inputs.setdefault("study", Path(study))
+    meta = {
+        "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
+        "created": _dt.datetime.now().isoformat(timespec="seconds"),
+        "wall_time_s": round(wall_time_s, 3),
+        "seed": seed,
+        "versions": versions(),
+        "inputs": {k: {"path": str(v), "sha256": file_digest(v)} for k, v in inputs.items() if v and Path(v).is_file()},
+        "parameters": params or {},
+    }
+    meta.update(extra or {})
+    text = json.dumps(meta, indent=2, default=str)
+    tmp = Path(folder) / f".meta.json.tmp-{os.getpid()}"
+    tmp.write_text(text)
+    os.replace(tmp, Path(folder) / "meta.json")
+
+
 class ResultsFolder:
     """Context manager for an atomic results folder.
 
@@ -91,17 +161,16 @@ class ResultsFolder:
         self._t0 = 0.0
         self.extra_meta: dict[str, Any] = {}
 
-    def _all_inputs(self) -> dict[str, Path]:
-        inputs = dict(self.inputs)
-        study = os.environ.get("VCSUMO_STUDY_FILE")
-        if study:
-            inputs.setdefault("study", Path(study))
-        return inputs
-
     def __enter__(self) -> "ResultsFolder":
         if self.final.exists() and any(self.final.iterdir()) and not self.overwrite:
             raise VcsumoError(f"{self.final}: output folder exists and is not empty (choose another --out or remove it)")
+        self._made = []
+        p = self.final.parent
+        while not p.exists():
+            self._made.append(p)
+            p = p.parent
         self.final.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_partials(self.final.parent, self.final.name)
         if self.path.exists():
             shutil.rmtree(self.path)
         self.path.mkdir(parents=True)
@@ -111,18 +180,13 @@ class ResultsFolder:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None:
             shutil.rmtree(self.path, ignore_errors=True)
+            for p in self._made:  # folders made for this one (an empty results/) go too
+                try:
+                    p.rmdir()
+                except OSError:
+                    break
             return
-        meta = {
-            "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
-            "created": _dt.datetime.now().isoformat(timespec="seconds"),
-            "wall_time_s": round(time.perf_counter() - self._t0, 3),
-            "seed": self.seed,
-            "versions": versions(),
-            "inputs": {k: {"path": str(v), "sha256": file_digest(v)} for k, v in self._all_inputs().items() if v and Path(v).is_file()},
-            "parameters": self.params,
-        }
-        meta.update(self.extra_meta)
-        (self.path / "meta.json").write_text(json.dumps(meta, indent=2, default=str))
+        write_meta(self.path, self.inputs, self.seed, self.params, time.perf_counter() - self._t0, self.extra_meta)
         if self.final.exists():
             shutil.rmtree(self.final)
         os.replace(self.path, self.final)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import click
 
-from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
+from vcsumo.cli.ui import out_console, print_table, progress_bar
 
 from vcsumo.errors import InputError
 
@@ -43,7 +43,7 @@ def _seeds(count: int, first: int) -> list[int]:
 @click.option("--controllers", default=None, help="Comma-separated VC controllers, vc only (default: cbf-cbc)")
 @click.option("--delay-config", type=click.Path(path_type=Path), default=None,
               help="YAML file of primary delays (default: 30 % of trains exp(120 s) at origin, 10 % of stops exp(30 s))")
-@click.option("--workers", type=int, default=None, help="Parallel worker processes (default: number of CPUs; 0 = in this process)")
+@click.option("--workers", type=int, default=None, help="Parallel worker processes, 1 or more (default: number of CPUs; 1 = in this process)")
 @click.option("--scheduler", default=None, help="Run on a Dask cluster: address of its scheduler, tcp://HOST:PORT")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Batch folder (default: results/batch-<line>-<hash of line and delays>; the same command resumes there)")
@@ -59,6 +59,7 @@ def batch_cmd(line_spec: str, timetables: str | None, regimes: str, n_seeds: int
     Writes batch.csv (one row per run), batch_trains.csv (one row per train and run), uic406.csv
     and report/ (summary table, delay and punctuality plots, meta.json).
     """
+    from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
     from vcsumo.studies.batch import REGIMES, resolve_timetables, run_batch, summarize
     from vcsumo.delays import load_delay_config
     from vcsumo.line import load_line
@@ -72,10 +73,8 @@ def batch_cmd(line_spec: str, timetables: str | None, regimes: str, n_seeds: int
     if ctrl_list is not None and "vc" not in regime_list:
         raise InputError(None, "--controllers", f"only the vc regime takes a controller (regimes are {', '.join(regime_list)})")
     tt_files = resolve_timetables(timetables, line)
-    if workers is not None and workers < 0:
-        raise InputError(None, "--workers", f"{workers}: must be 0 or more")
-    if scheduler is not None and not scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
-        raise InputError(None, "--scheduler", f"'{scheduler}' is not a scheduler address (tcp://HOST:PORT)")
+    check_workers(workers)
+    check_scheduler(scheduler)
     delays = load_delay_config(delay_config)
     seeds = _seeds(n_seeds, first_seed)
     command = " ".join(["vcsumo"] + sys.argv[1:]) if Path(sys.argv[0]).name.startswith("vcsumo") else ""
@@ -104,8 +103,15 @@ def batch_cmd(line_spec: str, timetables: str | None, regimes: str, n_seeds: int
                                                     "mean_arrival_delay_s", "knock_on_delay_s", "uic406_%", "uic406_cyc_%", "collisions"])
     out_console.print(f"{len(df)} runs: {df.attrs['new_runs']} run now, {df.attrs['resumed_runs']} already in batch.csv; "
                       f"{df.attrs['failed_runs']} failed")
-    if df.attrs["failed_runs"]:
-        for _, r in df[df["status"] != "ok"].head(3).iterrows():
-            out_console.print(f"  failed: {r['timetable']} {r['regime']} seed {r['seed']}: {r['error']}", markup=False, highlight=False)
+    failed = df[df["status"] != "ok"]
+    if len(failed):
+        shown = failed.drop_duplicates("error").head(5)
+        for _, r in shown.iterrows():
+            same = int((failed["error"] == r["error"]).sum())
+            more = f" (and {same - 1} more runs with this error)" if same > 1 else ""
+            out_console.print(f"  failed: {r['timetable']} {r['regime']}{'/' + r['controller'] if r['controller'] else ''} seed {r['seed']}: "
+                              f"{r['error']}{more}", markup=False, highlight=False)
     out_console.print(f"wrote {folder / 'batch.csv'}")
     out_console.print(f"wrote {folder / 'report'}")
+    if len(df) and len(failed) == len(df):
+        raise CampaignFailed(f"every run of the batch failed ({len(df)} of {len(df)}; errors above and in {folder / 'batch.csv'})")

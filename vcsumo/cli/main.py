@@ -260,15 +260,18 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
 @click.option("--vc-step-length", type=float, default=0.2, show_default=True, help="SUMO and controller step for VC, s")
 @click.option("--fixed-time-s", type=float, default=None,
               help="ETCS fixed times (route setting + MA transmission + reaction), s, overriding the assumption set's: in the simulation and in the analytic headway; 10-20 s is typical")
-@click.option("--workers", type=int, default=None, help="Parallel processes (default: number of CPUs; 1 = in this process)")
+@click.option("--workers", type=int, default=None, help="Parallel processes, 1 or more (default: number of CPUs; 1 = in this process)")
+@click.option("--scheduler", default=None, help="Run the cases on a Dask cluster: address of its scheduler, tcp://HOST:PORT")
 @click.option("--assumptions", default=None, help="Assumption set of the separation model: a shipped name or a .yaml path (default: etcs_typical)")
 @click.option("--seed", type=int, default=42, show_default=True, help=SEED_HELP)
-@click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Results folder (default: new folder under results/); run again into the same folder to finish a stopped study (only missing cases run)")
 def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_sizes: str, directions: str, patterns: str | None, block_length_m: float | None,
-                 step_length: float, vc_step_length: float, fixed_time_s: float | None, workers: int | None, assumptions: str | None, seed: int, out: Path | None) -> None:
+                 step_length: float, vc_step_length: float, fixed_time_s: float | None, workers: int | None, scheduler: str | None, assumptions: str | None,
+                 seed: int, out: Path | None) -> None:
     """Line capacity under FBS, MB and VC (each controller, convoy sizes), per direction and stopping pattern."""
     from vcsumo.line import load_line
-    from vcsumo.results import ResultsFolder, default_out
+    from vcsumo.results import default_out
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.studies.capacity import PATTERNS, run_capacity_study
@@ -296,28 +299,37 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
         raise VcsumoError(f"--fixed-time-s: {fixed_time_s} s is negative")
     if fixed_time_s is not None:
         aset = aset.model_copy(update={"fixed_time_s": fixed_time_s})
-    import os
+    from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
 
-    n_workers = workers if workers is not None else (os.cpu_count() or 1)
-    if n_workers < 1:
-        raise VcsumoError(f"--workers: {workers} (at least 1)")
+    n_workers = check_workers(workers)
+    check_scheduler(scheduler)
     net = network(line, block_length_m)
     out = out or default_out("capacity", line.name)
-    with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params={"train": name, "controllers": ctrls, "convoy_sizes": sizes, "directions": dirs,
-                       "patterns": pats, "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length,
-                       "fixed_time_s": aset.fixed_time_s, "workers": n_workers, "assumptions": aset.record()}) as rf:
-        with progress_bar() as prog:
-            task = prog.add_task(f"capacity {line.name}", total=1.0)
+    prog = progress_bar()
+    task = prog.add_task(f"capacity {line.name}", total=1.0)
+    shown = []
 
-            def upd(k: int, n: int, desc: str) -> None:
-                prog.update(task, completed=k / n if n else 1.0, description=f"capacity {line.name}: {desc}")
+    def upd(k: int, n: int, desc: str) -> None:
+        if not shown:  # the bar starts with the first case: input errors come before any bar
+            prog.start()
+            shown.append(True)
+        prog.update(task, completed=k / n if n else 1.0, description=f"capacity {line.name}: {desc}")
 
-            df = run_capacity_study(line, net, stock, rf.path, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd,
-                                    workers=n_workers, assumptions=aset)
+    try:
+        df = run_capacity_study(line, net, stock, out, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd,
+                                workers=n_workers, scheduler=scheduler, assumptions=aset)
+    finally:
+        if shown:
+            prog.stop()
     print_table(df, f"capacity — {line.name} ({name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
                 "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"],
                 csv_path=out / "capacity.csv", drop_first=["headway_analytic_s", "intra_convoy_gap_m", "min_gap_m"])
+    failed = df[df.error.astype(str) != ""]  # listed with their errors under the table
+    if df.attrs.get("resumed_cases"):
+        out_console.print(f"{df.attrs['new_cases']} cases run now, {df.attrs['resumed_cases']} already in {out / 'capacity_cases.csv'}")
     out_console.print(f"wrote {out / 'capacity.csv'}")
+    if len(failed) == len(df):
+        raise CampaignFailed(f"every case of the capacity study failed ({len(df)} of {len(df)}; errors above and in {out / 'capacity.csv'})")
 
 
 @study.command("run")
@@ -455,17 +467,26 @@ _add_verbosity_options(cli)
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     setup_logging(0, console)
+    from vcsumo.engine.campaign import Interrupted, sigterm_as_interrupt
+
     try:
-        cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
+        with sigterm_as_interrupt():  # SIGTERM (timeout, kill) cleans up like Ctrl-C
+            cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
     except VcsumoError as exc:
         console.print(f"error: {exc}", highlight=False, markup=False, soft_wrap=True)
-        return 2
-    except click.exceptions.Abort:
-        console.print("aborted")
+        return getattr(exc, "exit_code", 2)  # 2: bad input; 1: the command ran but every case failed
+    except click.exceptions.Abort as exc:
+        if isinstance(exc.__cause__, Interrupted):  # click turns KeyboardInterrupt into Abort
+            console.print("terminated")
+            return 128 + exc.__cause__.signum
+        console.print("interrupted" if isinstance(exc.__cause__, KeyboardInterrupt) else "aborted")
         return 130
     except click.exceptions.ClickException as exc:
         exc.show()
         return exc.exit_code
+    except Interrupted as exc:
+        console.print("terminated")
+        return 128 + exc.signum
     except KeyboardInterrupt:
         console.print("interrupted")
         return 130

@@ -8,13 +8,12 @@ whether the bar is met.  :mod:`vcsumo.cli.main` registers it under the ``study``
 from __future__ import annotations
 
 import datetime as _dt
-import os
 import time
 from pathlib import Path
 
 import click
 
-from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
+from vcsumo.cli.ui import out_console, print_table, progress_bar
 from pydantic import ValidationError
 
 from vcsumo.errors import InputError
@@ -29,7 +28,8 @@ def _csv(value: str) -> list[str]:
 @click.option("--lines", default="firenze_bologna,milano_bologna,hcmc_line1", show_default=True, help="Lines the scenarios are drawn on (names or line.yaml paths), comma-separated")
 @click.option("--controllers", default="mpc,cbc,cbf-mpc,cbf-cbc", show_default=True, help="Controllers (NAME or NAME:PARAMS), comma-separated")
 @click.option("--seed", type=int, default=2026, show_default=True, help="Campaign seed (scenario k is seeded with (seed, k))")
-@click.option("--workers", type=int, default=None, help="Parallel processes (default: number of CPUs; 1 = in this process)")
+@click.option("--workers", type=int, default=None, help="Parallel processes, 1 or more (default: number of CPUs; 1 = in this process)")
+@click.option("--scheduler", default=None, help="Run the scenarios on a Dask cluster: address of its scheduler, tcp://HOST:PORT")
 @click.option("--step-s", type=float, default=0.2, show_default=True, help="Control and integration step, s")
 @click.option("--control-period-s", type=float, default=0.4, show_default=True, help="Period of the nominal controllers (ATO cycle), s")
 @click.option("--followers-max", type=int, default=2, show_default=True, help="Largest number of followers behind the leader")
@@ -45,11 +45,12 @@ def _csv(value: str) -> list[str]:
 @click.option("--max-duration-s", type=float, default=900.0, show_default=True, help="Longest simulated time of a scenario, s")
 @click.option("--cbf", "cbf_config", default=None, help="CBF parameter file (controllers/<name>.yaml or a path; default: cbf)")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (re-running with the same --out resumes)")
-def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers: int | None, step_s: float, control_period_s: float, followers_max: int,
+def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers: int | None, scheduler: str | None, step_s: float, control_period_s: float, followers_max: int,
                kinds: str, loss_max: float, delay_max_s: float, mean_extra_max_s: float, outage_max_s: float, position_error_max_m: float,
                channel_period_s: float, outage_probability: float, corner_probability: float, max_duration_s: float, cbf_config: str | None,
                out: Path | None) -> None:
     """Monte Carlo safety campaign: leader emergency brakes, lossy delayed channel, outages, uncertain trains, odometry errors."""
+    from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
     from vcsumo.studies.safety import SafetyCampaign, bar_met, run_safety_campaign, summarize_safety, write_safety_report
 
     try:
@@ -60,15 +61,15 @@ def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers:
     except ValidationError as exc:
         err = exc.errors()[0]
         raise InputError(None, "--" + str(err["loc"][0]).replace("_", "-"), err["msg"]) from None
-    if workers is not None and workers < 1:
-        raise InputError(None, "--workers", "must be at least 1")
-    n_workers = workers if workers is not None else (os.cpu_count() or 1)
+    n_workers = check_workers(workers)
+    check_scheduler(scheduler)
     if out is None:
         out = Path("results") / f"safety-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
     t0 = time.perf_counter()
     with progress_bar() as prog:
         task = prog.add_task(f"safety {cfg.scenarios} scenarios × {len(cfg.controllers)} controllers", total=1.0)
-        df = run_safety_campaign(cfg, out, workers=n_workers, progress=lambda d, t: prog.update(task, completed=d / t if t else 1.0))
+        df = run_safety_campaign(cfg, out, workers=n_workers, progress=lambda d, t: prog.update(task, completed=d / t if t else 1.0),
+                                 scheduler=scheduler)
     summary = summarize_safety(df)
     write_safety_report(out, cfg, df, summary, time.perf_counter() - t0)
     print_table(summary, f"safety campaign — {cfg.scenarios} scenarios", ["controller", "supervised", "scenarios", "failed_runs", "scenarios_with_violation",
@@ -77,3 +78,10 @@ def safety_cmd(scenarios: int, lines: str, controllers: str, seed: int, workers:
     out_console.print(("bar met" if met else "bar NOT met") + ": CBF-supervised controllers have 0 gap violations and 0 collisions"
                       + ("" if met else " (see the table)") + f" over {cfg.scenarios} scenarios")
     out_console.print(f"wrote {out / 'safety.csv'} and {out / 'report'}")
+    failed = df[df["error"] != ""]
+    for _, r in failed.drop_duplicates("error").head(5).iterrows():
+        same = int((failed["error"] == r["error"]).sum())
+        more = f" (and {same - 1} more runs with this error)" if same > 1 else ""
+        out_console.print(f"  failed: {r['scenario']} {r['controller']}: {r['error']}{more}", markup=False, highlight=False)
+    if len(df) == 0 or len(failed) == len(df):
+        raise CampaignFailed(f"every run of the safety campaign failed ({len(failed)} of {len(df)}; errors above and in {out / 'safety.csv'})")

@@ -81,7 +81,7 @@ class BatchStudy(_Common):
     seeds: int = Field(default=3, ge=1, le=1000, description="Seeds per timetable and regime (1–1,000)")
     controllers: list[str] = Field(default_factory=list)
     delay_config: str | None = None
-    workers: int | None = Field(default=None, ge=0, le=512, description="Parallel processes (0: in this process; at most 512)")
+    workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (1: in this process; default: number of CPUs)")
     scheduler: str | None = None
 
 

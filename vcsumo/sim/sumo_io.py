@@ -78,9 +78,15 @@ def write_additional(path: Path, recordings: list[SignalRecording] | tuple = (),
     return path
 
 
+REPLAY_PREFIX = "replay-"
+"""Output prefix of a replay (``sumo -c scenario.sumocfg`` in the results folder): the recorded
+fcd.xml, tripinfo.xml, stops.xml and logs are never overwritten."""
+
+
 def write_sumocfg(path: Path, args: list[str], out: Path) -> None:
     """A .sumocfg equivalent to the run's SUMO options ``args``, with paths relative to the results
-    folder ``out`` (for sumo-gui)."""
+    folder ``out`` (for sumo-gui); a replay writes ``replay-*`` files (:data:`REPLAY_PREFIX`)
+    beside the recorded ones."""
     root = ET.Element("configuration")
     it = iter(args)
     for opt in it:
@@ -96,8 +102,10 @@ def write_sumocfg(path: Path, args: list[str], out: Path) -> None:
                     pass
             parts.append(v)
         ET.SubElement(root, key, value=",".join(parts))
+    ET.SubElement(root, "output-prefix", value=REPLAY_PREFIX)
     ET.indent(root)
-    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (SUMO alone: the braking-curve supervision, tunnel vType switching and VC drivers are not replayed) -->\n' + ET.tostring(root, encoding="unicode") + "\n")
+    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (SUMO alone: the braking-curve supervision, tunnel vType switching and VC drivers are not replayed; '
+                    f'the replay writes {REPLAY_PREFIX}* files, the recorded outputs stay as they are) -->\n' + ET.tostring(root, encoding="unicode") + "\n")
 
 
 # -------------------------------------------------------------------------------------------

@@ -19,14 +19,13 @@ Resuming: a run is identified by its key, the hash of (timetable file SHA-256, r
 controller, seed, delay-configuration hash, line file SHA-256, step length, block length).  A
 run whose key is already in ``batch.csv`` is not run again, so re-running the same command
 continues an interrupted batch, and adding seeds or timetables only runs the new combinations.
-``batch.csv`` is appended one whole line at a time (flushed to disk); a line cut off by an
-interruption is discarded on the next start, and train rows without their run row are dropped.
-Failed runs count as finished unless ``retry_failed``.
+The two CSV files are the folder's result store (:mod:`vcsumo.engine.store`): appended one whole
+line at a time, every run exactly once, locked — a second batch into the same folder while one
+runs stops at once with one error line.  Failed runs count as finished unless ``retry_failed``.
 A run that fails (bad input, SUMO stopping on an error mid-run) is a row with status ``failed``
-and its ``error``; its results folder is removed (never left half-written).  A worker process that
-dies during a run (SIGKILL, SUMO aborting the process) fails only that run: the other unfinished
-runs are retried, the culprit is found by running the suspects one per process
-(:func:`_run_local`), and the finished rows are kept.
+and its ``error``; its results folder is removed (never left half-written).  Runs execute through
+:mod:`vcsumo.engine.campaign`: a worker process that dies during a run (SIGKILL, SUMO aborting
+the process) fails only that run, after one more try alone (error :data:`WORKER_DIED`).
 
 Metrics of a run (``BATCH_COLUMNS``; times in s):
 
@@ -48,17 +47,12 @@ Metrics of a run (``BATCH_COLUMNS``; times in s):
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import json
 import math
-import multiprocessing
 import os
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
@@ -66,6 +60,8 @@ from typing import Callable, Iterable
 import pandas as pd
 
 from vcsumo.delays import DelayConfig, config_digest, inject_delays
+from vcsumo.engine.campaign import WORKER_DIED, Outcome, Runner, Task, error_message, run_campaign  # noqa: F401 - WORKER_DIED re-exported
+from vcsumo.engine.store import ResultStore, Table, atomic_csv, read_table
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, load_line
 from vcsumo.results import ResultsFolder, file_digest
@@ -136,12 +132,6 @@ def _one_line(msg: str) -> str:
     return " ".join(str(msg).split())
 
 
-def _error_message(exc: BaseException) -> str:
-    if isinstance(exc, VcsumoError):
-        return _one_line(str(exc))
-    return _one_line(f"{type(exc).__name__}: {exc}")
-
-
 def _base_row(spec: RunSpec) -> dict:
     row = {c: None for c in BATCH_COLUMNS}
     row.update(timetable=spec.timetable, regime=spec.regime, controller=spec.controller, seed=spec.seed, line=spec.line,
@@ -171,7 +161,7 @@ def run_one(spec: RunSpec) -> dict:
     except BaseException as exc:  # noqa: BLE001 - a batch never stops for one run
         if isinstance(exc, KeyboardInterrupt):
             raise
-        return failed_outcome(spec, _error_message(exc), time.perf_counter() - t0)
+        return failed_outcome(spec, error_message(exc), time.perf_counter() - t0)
 
 
 def _run(spec: RunSpec) -> dict:
@@ -253,69 +243,18 @@ def _metrics(spec: RunSpec, planned, delays, ref: dict[str, float], res) -> tupl
 
 
 # ---------------------------------------------------------------------------------------------
-# Append-only CSV store
+# Store (vcsumo.engine.store): batch.csv + batch_trains.csv, keyed by run_key
 
 
-def _fmt(v) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return "" if math.isnan(v) else repr(round(v, 6))
-    if isinstance(v, bool):
-        return "True" if v else "False"
-    return str(v)
-
-
-def _csv_line(values: Iterable) -> str:
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerow([_fmt(v) for v in values])
-    return buf.getvalue()
-
-
-def _repair(path: Path, columns: list[str]) -> None:
-    """Create the file with its header, drop a line cut off by an interruption, check the header."""
-    if not path.is_file() or path.stat().st_size == 0:
-        path.write_text(_csv_line(columns))
-        return
-    data = path.read_bytes()
-    if not data.endswith(b"\n"):
-        cut = data.rfind(b"\n")
-        with open(path, "rb+") as f:
-            f.truncate(cut + 1 if cut >= 0 else 0)
-        if cut < 0:
-            path.write_text(_csv_line(columns))
-            return
-    header = next(csv.reader(io.StringIO(path.read_text().split("\n", 1)[0])))
-    if header != columns:
-        raise VcsumoError(f"{path}: its columns are not those this vcsumo writes (an older batch?); choose another --out")
-
-
-def _append(path: Path, rows: list[dict], columns: list[str]) -> None:
-    if not rows:
-        return
-    text = "".join(_csv_line(r.get(c) for c in columns) for r in rows)
-    with open(path, "a", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-
-
-def _atomic_csv(df: pd.DataFrame, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    df.to_csv(tmp, index=False)
-    os.replace(tmp, path)
+BATCH_TABLE = Table("batch.csv", tuple(BATCH_COLUMNS), "run_key", text=("controller", "error", "timetable"))
+TRAINS_TABLE = Table("batch_trains.csv", tuple(TRAIN_COLUMNS), "run_key", identity=("train",))
 
 
 def read_batch(out: Path) -> pd.DataFrame:
-    """``batch.csv`` of a batch folder (last row per run key), typed; empty frame if none."""
-    path = Path(out) / "batch.csv"
-    if not path.is_file():
-        return pd.DataFrame(columns=BATCH_COLUMNS)
-    df = pd.read_csv(path, dtype={"controller": str, "error": str, "timetable": str, "run_key": str}, keep_default_na=True)
+    """``batch.csv`` of a batch folder (one row per run key), typed; empty frame if none."""
+    df = read_table(Path(out), BATCH_TABLE)
     df = df[df["status"].isin(["ok", "failed"])]
-    for c in ("controller", "error"):
-        df[c] = df[c].fillna("")
-    return df.drop_duplicates("run_key", keep="last").reset_index(drop=True)
+    return df.reset_index(drop=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -431,7 +370,7 @@ def _uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, ste
             new.append(df[UIC_COLUMNS])
     if new:
         have = pd.concat([have] + new, ignore_index=True) if len(have) else pd.concat(new, ignore_index=True)
-        _atomic_csv(have, path)
+        atomic_csv(have, path)
     return have
 
 
@@ -444,125 +383,18 @@ def _capacity(uic: pd.DataFrame, spec: RunSpec, window_s: float) -> tuple[float,
 
 
 # ---------------------------------------------------------------------------------------------
-# Execution
+# Execution (vcsumo.engine.campaign)
 
 
-def silence_worker(log_path: str) -> None:
-    """Worker initializer: SUMO's console messages go to workers.log, not over the progress bar,
-    and the worker ends itself when the command that started it is gone (killed or interrupted),
-    instead of running on as an orphan."""
-    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-    os.dup2(fd, 1)
-    os.dup2(fd, 2)
-    os.close(fd)
-    parent = os.getppid()
+def _to_rows(uic: pd.DataFrame, window_s: float):
+    def to_rows(task: Task, out: Outcome) -> tuple[list[dict], dict[str, list[dict]]]:
+        spec: RunSpec = task.arg
+        outcome = out.value if out.ok else failed_outcome(spec, out.error, out.wall_time_s)
+        row = outcome["row"]
+        row["capacity_consumption_pct"], row["capacity_consumption_cyclic_pct"] = _capacity(uic, spec, window_s)
+        return [row], {TRAINS_TABLE.name: outcome["trains"]}
 
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(1.0)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="vcsumo-parent-watch", daemon=True).start()
-
-
-WORKER_DIED = "the worker process died during the run (killed by a signal, out of memory, or SUMO aborted the process)"
-
-
-def _partials(spec: RunSpec) -> list[Path]:
-    """Partial results folders of a run (``<run_dir>.partial-<pid>``) left by a worker that died."""
-    d = Path(spec.run_dir)
-    return sorted(d.parent.glob(f"{d.name}.partial-*")) if d.parent.is_dir() else []
-
-
-def _remove_partials(spec: RunSpec) -> None:
-    import shutil
-
-    for p in _partials(spec):
-        shutil.rmtree(p, ignore_errors=True)
-
-
-def _run_local(pending: list[RunSpec], workers: int, log_path: Path, on_outcome: Callable[[RunSpec, dict], None]) -> None:
-    """Run in pools of spawned processes; a worker that dies (SIGKILL, SUMO abort) fails only its own run.
-
-    A dead worker breaks the whole pool (``BrokenProcessPool`` for every unfinished future), so
-    the unfinished runs are sorted out: runs that were under way (their partial results folder
-    exists) or that were in a broken pool before are *suspects* and run again one at a time, each
-    in its own single-worker pool; a suspect whose worker dies there is the culprit and becomes a
-    failed row (error :data:`WORKER_DIED`).  The other runs go back to the parallel queue.  The
-    partial results folders of dead workers are removed, so no half-written run folder remains.
-    """
-    if workers <= 0:
-        for spec in pending:
-            on_outcome(spec, run_one(spec))
-        return
-    breaks: dict[str, int] = {}
-    queue = list(pending)
-    suspects: list[RunSpec] = []
-    ctx = multiprocessing.get_context("spawn")
-    while queue or suspects:
-        isolated = not queue
-        batch = [suspects.pop(0)] if isolated else queue
-        queue = []
-        pool = ProcessPoolExecutor(max_workers=1 if isolated else min(workers, len(batch)), mp_context=ctx, initializer=silence_worker,
-                                   initargs=(str(log_path),))
-        futures: dict[Future, RunSpec] = {}
-        lost: list[RunSpec] = []
-        try:
-            for spec in batch:
-                futures[pool.submit(run_one, spec)] = spec
-            not_done = set(futures)
-            while not_done:
-                done, not_done = wait(not_done, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    spec = futures[fut]
-                    try:
-                        outcome = fut.result()
-                    except BrokenProcessPool:
-                        lost.append(spec)
-                        continue
-                    except Exception as exc:  # pragma: no cover - run_one never raises
-                        outcome = failed_outcome(spec, _error_message(exc))
-                    on_outcome(spec, outcome)
-                if lost:  # the pool is unusable: every unfinished future fails the same way
-                    lost += [futures[f] for f in not_done]
-                    not_done = set()
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
-        for spec in lost:
-            under_way = bool(_partials(spec))
-            _remove_partials(spec)
-            breaks[spec.key] = breaks.get(spec.key, 0) + 1
-            if isolated:
-                on_outcome(spec, failed_outcome(spec, WORKER_DIED))
-            elif under_way or breaks[spec.key] >= 2:
-                suspects.append(spec)
-            else:
-                queue.append(spec)
-
-
-def _run_dask(pending: list[RunSpec], scheduler: str, on_outcome: Callable[[RunSpec, dict], None]) -> None:
-    """Run on a Dask distributed cluster: each run is one task (workers need vcsumo and the input paths)."""
-    try:
-        from distributed import Client, as_completed
-    except ImportError:  # pragma: no cover - dask[distributed] is a dependency
-        raise VcsumoError("--scheduler: dask.distributed is not installed (pip install 'dask[distributed]')") from None
-    try:
-        client = Client(scheduler, timeout="20s")
-    except Exception as exc:
-        raise VcsumoError(f"--scheduler: cannot connect to the Dask scheduler at {scheduler}: {_error_message(exc)}") from None
-    try:
-        futures = {client.submit(run_one, spec, key=f"vcsumo-batch-{spec.key}-{os.getpid()}-{time.time_ns()}", pure=False, retries=1): spec for spec in pending}
-        for fut in as_completed(list(futures)):
-            spec = futures[fut]
-            try:
-                outcome = fut.result()
-            except Exception as exc:  # the task itself never raises; a lost worker does
-                outcome = failed_outcome(spec, f"dask: {_error_message(exc)}")
-            on_outcome(spec, outcome)
-    finally:
-        client.close()
+    return to_rows
 
 
 def run_batch(
@@ -586,8 +418,8 @@ def run_batch(
     """Run (or resume) a batch; returns its rows (``BATCH_COLUMNS``) in plan order.
 
     ``controllers`` (vc only; default ``cbf-cbc``) must not be given without the vc regime.
-    ``workers``: parallel processes (default: the number of CPUs; 0 runs in this process);
-    ``scheduler``: ``tcp://host:port`` of a Dask scheduler instead of local processes.
+    ``workers``: parallel processes (default: the number of CPUs; 1 runs in this process; 0 or
+    less is an input error); ``scheduler``: ``tcp://host:port`` of a Dask scheduler instead.
     ``df.attrs`` holds ``out`` (the folder), ``new_runs`` (runs executed now), ``resumed_runs``
     (found finished in ``batch.csv``), ``failed_runs`` and ``new_failed``.
     ``progress(done, total, row)`` is called before the first new run and after every one.
@@ -607,66 +439,37 @@ def run_batch(
     if window_s <= 0:
         raise InputError(None, "--window-s", "the observation window must be positive")
     tts = resolve_timetables(timetables, line)
+    runner = Runner(workers, scheduler)  # --workers and --scheduler checked before anything is built or written
     out = Path(out) if out is not None else default_batch_out(line, config_digest(delays), step_length_s, block_length_m)
     t_wall = time.perf_counter()
     from vcsumo.sim.network import build_network
 
     build_network(line, block_length_m)  # once, before the workers need it
     specs = plan_runs(line, tts, regimes, seeds, controllers, delays, out, step_length_s, block_length_m, command)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "runs").mkdir(exist_ok=True)
-    batch_csv, trains_csv = out / "batch.csv", out / "batch_trains.csv"
-    _repair(batch_csv, BATCH_COLUMNS)
-    _repair(trains_csv, TRAIN_COLUMNS)
-    existing = read_batch(out)
     requested = {s.key for s in specs}
-    done_keys = set(existing["run_key"])
-    if retry_failed:
-        retry = set(existing.loc[(existing["status"] == "failed") & existing["run_key"].isin(requested), "run_key"])
-        if retry:
-            keep = pd.read_csv(batch_csv, dtype=str, keep_default_na=False)
-            _atomic_csv(keep[~keep["run_key"].isin(retry)], batch_csv)
-            done_keys -= retry
-    # train rows of runs without a run row (cut off by an interruption) are dropped
-    trains_df = pd.read_csv(trains_csv, dtype=str, keep_default_na=False)
-    if len(trains_df) and not trains_df["run_key"].isin(done_keys).all():
-        _atomic_csv(trains_df[trains_df["run_key"].isin(done_keys)], trains_csv)
-    pending = [s for s in specs if s.key not in done_keys]
-    uic = _uic_table(out, line, specs, window_s, step_length_s, block_length_m)
-    total = len(pending)
-    finished = [0]
-    new_failed = [0]
-    if progress:
-        progress(0, total, None)
+    runner.log_path, runner.partial_roots = out / "workers.log", [out / "runs"]
+    with runner, ResultStore(out, BATCH_TABLE, [TRAINS_TABLE], kind="batch") as store:
+        (out / "runs").mkdir(exist_ok=True)
+        if retry_failed:
+            existing = read_batch(out)
+            store.forget(existing.loc[(existing["status"] == "failed") & existing["run_key"].isin(requested), "run_key"])
+        uic = _uic_table(out, line, specs, window_s, step_length_s, block_length_m)
 
-    def on_outcome(spec: RunSpec, outcome: dict) -> None:
-        row = outcome["row"]
-        row["capacity_consumption_pct"], row["capacity_consumption_cyclic_pct"] = _capacity(uic, spec, window_s)
-        _append(trains_csv, outcome["trains"], TRAIN_COLUMNS)
-        _append(batch_csv, [row], BATCH_COLUMNS)
-        finished[0] += 1
-        new_failed[0] += row["status"] != "ok"
-        if progress:
-            progress(finished[0], total, row)
-
-    if pending:
-        if scheduler:
-            _run_dask(pending, scheduler, on_outcome)
-        else:
-            n = (os.cpu_count() or 1) if workers is None else workers
-            _run_local(pending, n, out / "workers.log", on_outcome)
-    df = read_batch(out)
-    df = df[df["run_key"].isin(requested)]
-    order = {s.key: i for i, s in enumerate(specs)}
-    df = df.sort_values("run_key", key=lambda k: k.map(order)).reset_index(drop=True)[BATCH_COLUMNS]
-    # capacity consumption of this invocation's window (rows resumed from an earlier window are refreshed)
-    by_key = {s.key: s for s in specs}
-    caps = [_capacity(uic, by_key[k], window_s) for k in df["run_key"]]
-    df["capacity_consumption_pct"] = [c[0] for c in caps]
-    df["capacity_consumption_cyclic_pct"] = [c[1] for c in caps]
-    write_report(out, df, line, tts, delays, delay_config_path, seeds, regimes, controllers, step_length_s, block_length_m, window_s,
-                 time.perf_counter() - t_wall, total, len(specs) - total)
-    df.attrs.update(out=out, new_runs=total, resumed_runs=len(specs) - total, failed_runs=int((df["status"] != "ok").sum()), new_failed=new_failed[0])
+        tasks = [Task(s.key, run_one, s, s.label) for s in specs]
+        res = run_campaign(store, tasks, runner, _to_rows(uic, window_s),
+                           (lambda done, total, rows: progress(done, total, rows[0] if rows else None)) if progress else None)
+        df = read_batch(out)
+        df = df[df["run_key"].isin(requested)]
+        order = {s.key: i for i, s in enumerate(specs)}
+        df = df.sort_values("run_key", key=lambda k: k.map(order)).reset_index(drop=True)[BATCH_COLUMNS]
+        # capacity consumption of this invocation's window (rows resumed from an earlier window are refreshed)
+        by_key = {s.key: s for s in specs}
+        caps = [_capacity(uic, by_key[k], window_s) for k in df["run_key"]]
+        df["capacity_consumption_pct"] = [c[0] for c in caps]
+        df["capacity_consumption_cyclic_pct"] = [c[1] for c in caps]
+        write_report(out, df, line, tts, delays, delay_config_path, seeds, regimes, controllers, step_length_s, block_length_m, window_s,
+                     time.perf_counter() - t_wall, res.new, res.resumed)
+    df.attrs.update(out=out, new_runs=res.new, resumed_runs=res.resumed, failed_runs=int((df["status"] != "ok").sum()), new_failed=res.failed)
     return df
 
 
@@ -693,7 +496,8 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
     ok = d[~d["failed"]]
     counts = d.groupby(["timetable", "regime", "controller"], sort=False).agg(runs=("seed", "size"), failed=("failed", "sum"))
     agg = {k: v for k, v in SUMMARY_AGG.items() if k not in ("runs", "failed")}
-    means = ok.groupby(["timetable", "regime", "controller"], sort=False).agg(**agg) if len(ok) else pd.DataFrame(columns=list(agg))
+    means = (ok.groupby(["timetable", "regime", "controller"], sort=False).agg(**agg) if len(ok)
+             else pd.DataFrame(index=counts.index, columns=list(agg), dtype=float))  # every run failed: no means
     out = counts.join(means, how="left").reset_index()
     return out.round(4)
 

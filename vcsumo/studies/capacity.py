@@ -30,15 +30,20 @@ Writes ``capacity.csv``, ``capacity.png`` (capacity by regime and convoy size) a
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import pandas as pd
 
+from vcsumo.engine.campaign import Outcome, Runner, Task, run_campaign
+from vcsumo.engine.store import ResultStore, Table, atomic_csv
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
@@ -46,11 +51,13 @@ from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
+from vcsumo.results import ResultsFolder, file_digest, write_meta
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, speed_at, time_at, unhindered_run
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.studies.headway import release_km
 from vcsumo.studies.min_headway import Probe, search_min_headway
+from vcsumo.studies.time_distance import TIME_DISTANCE_COLUMNS, TIME_DISTANCE_FILE, time_distance_table
 from vcsumo.timetable import PlannedStop, PlannedTrain
 
 PATTERNS = ("non-stop", "all-stops")
@@ -332,19 +339,56 @@ def _case_dir(out: Path, case: Case) -> Path:
     return out / "runs" / safe_component(f"{case.direction}_{case.pattern}_{case.regime}_{case.controller or 'sumo'}_{case.convoy_size}".replace(":", "-"))
 
 
-def _case_task(args: tuple) -> tuple[Case, CaseResult | None, str]:
-    """One case, in a worker process or in this one: (case, result, error message)."""
-    line, net, stock, setup, case, out, step_s, vc_step_s, seed, assumptions, keep_example = args
-    try:
-        res = run_case(line, net, stock, setup, case, _case_dir(out, case), step_s, vc_step_s, seed=seed,
+CASES_TABLE = Table("capacity_cases.csv", ("case_key", *CAPACITY_COLUMNS), "case_key",
+                    text=("line", "direction", "regime", "controller", "stopping_pattern", "train", "error"))
+"""The capacity study's result store: one row per finished case (the rows of ``capacity.csv``)."""
+EXAMPLE_FILE = TIME_DISTANCE_FILE
+"""A case shown in the time-distance plot keeps its rows of ``time_distance.csv`` in its run folder."""
+
+
+def case_key(params: dict, case: Case) -> str:
+    """The resume key of a case: the study's parameters and the case (16 hex digits)."""
+    text = json.dumps(params, sort_keys=True, default=str) + f"|{case.direction}|{case.regime}|{case.controller or ''}|{case.convoy_size}|{case.pattern}"
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _case_task(args: tuple) -> dict:
+    """One case, in a worker process or in this one: its row of ``capacity.csv`` (an error raises).
+
+    The case's folder ``runs/<case>/`` is written whole or not at all; an example case also
+    leaves its result there (:data:`EXAMPLE_FILE`) for the time-distance plot."""
+    line, net, stock, setup, case, out, step_s, vc_step_s, seed, assumptions, keep_example, key = args
+    params = {"case": {"direction": case.direction, "regime": case.regime, "controller": case.controller, "convoy_size": case.convoy_size,
+                       "pattern": case.pattern}, "case_key": key, "step_length_s": step_s, "vc_step_length_s": vc_step_s,
+              "assumptions": assumptions.record()}
+    with ResultsFolder(_case_dir(out, case), inputs={"line": line.path}, seed=seed, params=params, overwrite=True) as rf:
+        res = run_case(line, net, stock, setup, case, rf.path, step_s, vc_step_s, seed=seed,
                        resolution_s=1.0 if case.regime == "vc" else 0.5, assumptions=assumptions)
-    except VcsumoError as exc:
-        return case, None, str(exc)
-    except Exception as exc:  # a failed case becomes a row with its error; the study goes on
-        return case, None, f"{type(exc).__name__}: {exc}"
-    if not keep_example:  # only example cases travel back with their traces (time-distance plot)
-        res = replace(res, probe=None, run=res.run.iloc[:0], blocks=None)
-    return case, res, ""
+        if keep_example:
+            time_distance_table({case.regime: res}, {case.direction: setup}).to_csv(rf.path / EXAMPLE_FILE, index=False)
+    return dict(res.row, case_key=key)
+
+
+def _load_example(out: Path, case: Case) -> pd.DataFrame | None:
+    """An example case's time-distance rows, as written (text), or None if they cannot be read."""
+    try:
+        df = pd.read_csv(_case_dir(out, case) / EXAMPLE_FILE, dtype=str, keep_default_na=False)
+    except (OSError, ValueError):  # missing or cut off: the case runs again
+        return None
+    return df if list(df.columns) == TIME_DISTANCE_COLUMNS else None
+
+
+def _time_distance(out: Path, example_of: dict, results: dict, setups: dict) -> pd.DataFrame:
+    """``time_distance.csv``: the example cases' rows (one panel per regime, FBS, MB, VC), a failed
+    example as its error (:func:`vcsumo.studies.time_distance.time_distance_table`)."""
+    parts = []
+    for regime in (r for r in ("fbs", "mb", "vc") if r in example_of):
+        case = example_of[regime]
+        rows = _load_example(out, case) if not results[case]["error"] else None
+        if rows is None:
+            rows = time_distance_table({}, setups, {regime: (case, results[case]["error"] or "no result")})
+        parts.append(rows.assign(panel=len(parts)))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=TIME_DISTANCE_COLUMNS)
 
 
 def _failed_row(line: Line, stock: RollingStock, net: BuiltNetwork, case: Case, error: str, fixed_time_s: float) -> dict:
@@ -354,19 +398,34 @@ def _failed_row(line: Line, stock: RollingStock, net: BuiltNetwork, case: Case, 
     return row
 
 
+def study_params(line: Line, net: BuiltNetwork, stock: RollingStock, step_s: float, vc_step_s: float, seed: int, assumptions: AssumptionSet) -> dict:
+    """The parameters every case of a study depends on: a study folder holds cases of one set only."""
+    return {"line": line.name, "line_sha256": file_digest(line.path), "block_length_m": net.topology.block_length_m, "train": stock.name,
+            "train_sha256": hashlib.sha256(json.dumps(stock.model_dump(mode="json"), sort_keys=True).encode()).hexdigest(),
+            "step_length_s": step_s, "vc_step_length_s": vc_step_s, "seed": seed, "fixed_time_s": assumptions.fixed_time_s,
+            "assumptions": assumptions.record()}
+
+
 def run_capacity_study(
     line: Line, net: BuiltNetwork, stock: RollingStock, out: Path, controllers: list[str], convoy_sizes: list[int],
     directions: tuple[str, ...] = ("up", "down"), patterns: tuple[str, ...] | None = None, step_s: float = 0.5, vc_step_s: float = 0.2,
-    seed: int = 42, progress: Callable[[int, int, str], None] | None = None, fixed_time_s: float | None = None, workers: int = 1,
-    assumptions: AssumptionSet | None = None,
+    seed: int = 42, progress: Callable[[int, int, str], None] | None = None, fixed_time_s: float | None = None, workers: int | None = 1,
+    scheduler: str | None = None, assumptions: AssumptionSet | None = None,
 ) -> pd.DataFrame:
-    """Every case; writes ``capacity.csv``, ``capacity.png`` and ``time_distance.png`` into ``out``.
+    """Every case; writes ``capacity.csv``, ``capacity.png``, ``time_distance.png`` and ``meta.json`` into ``out``.
 
-    ``workers`` > 1 runs cases in that many spawned processes (each with its own SUMO); a case that
-    fails becomes a row with its ``error`` and the study goes on.
+    Cases run through :mod:`vcsumo.engine.campaign`: ``workers`` processes (1: in this process;
+    ``None``: the number of CPUs) or a Dask ``scheduler``; a case that fails becomes a row with its
+    ``error`` and the study goes on.  Every finished case is recorded in ``capacity_cases.csv``
+    (the folder's store) as it finishes, so a study that was stopped (killed, interrupted)
+    resumes when run again into the same ``out``: only the missing cases run.  A folder holding
+    a study with other parameters (line, network, train, steps, seed, fixed time) is refused;
+    other cases (controllers, convoy sizes, directions, patterns) may be added.
+    ``df.attrs``: ``new_cases``, ``resumed_cases``, ``failed_cases``.
     """
     from vcsumo.control.registry import parse_controller
 
+    t_wall = time.perf_counter()
     for c in controllers:
         parse_controller(c)
     for n in convoy_sizes:
@@ -379,11 +438,15 @@ def run_capacity_study(
         assumptions = assumptions.model_copy(update={"fixed_time_s": fixed_time_s})
     fixed_time_s = assumptions.fixed_time_s
     model = SeparationModel(assumptions)
+    out = Path(out)
+    runner = Runner(workers, scheduler, log_path=out / "workers.log", partial_roots=[out / "runs"])
     setups = {d: route_setup(line, net, stock, d, step_s, model) for d in directions}
     if patterns is None:
         patterns = tuple(p for p in PATTERNS if p == "non-stop" or any(setups[d].stops_full for d in directions))
     # all-stops only where the direction has a station to stop at after its release point
     cases = [c for c in cases_for(directions, patterns, controllers, convoy_sizes) if c.pattern == "non-stop" or setups[c.direction].stops_full]
+    if not cases:
+        raise InputError(None, "--patterns", "no case to run (no stopping pattern with a station to stop at in these directions)")
     # VC with one train is moving block: its rows repeat MB's
     todo = [c for c in cases if not (c.regime == "vc" and c.convoy_size == 1)]
     example_of = {}
@@ -394,54 +457,70 @@ def run_capacity_study(
     examples_wanted = set(example_of.values())
     # longest first: VC convoys (largest first), then FBS/MB
     todo.sort(key=lambda c: (c.regime != "vc", -c.convoy_size))
-    tasks = [(line, net, stock, setups[c.direction], c, out, step_s, vc_step_s, seed, assumptions, c in examples_wanted) for c in todo]
-    results: dict[Case, tuple[CaseResult | None, str]] = {}
+    params = study_params(line, net, stock, step_s, vc_step_s, seed, assumptions)
+    keys = {c: case_key(params, c) for c in todo}
+    by_key = {k: c for c, k in keys.items()}
 
-    def done(case: Case, res: CaseResult | None, err: str) -> None:
-        results[case] = (res, err)
-        if progress:
-            progress(len(results), len(todo), f"{case.direction} {case.pattern} {case.regime} {case.controller or ''} n={case.convoy_size}" + (" FAILED" if err else ""))
+    def label(case: Case) -> str:
+        return f"{case.direction} {case.pattern} {case.regime} {case.controller or ''} n={case.convoy_size}"
 
-    if progress:
-        progress(0, len(todo), f"{len(todo)} cases")
-    if workers > 1 and len(tasks) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+    def to_rows(task: Task, outcome: Outcome) -> tuple[list[dict], dict]:
+        case = by_key[task.key]
+        row = outcome.value if outcome.ok else dict(_failed_row(line, stock, net, case, outcome.error, fixed_time_s), case_key=task.key)
+        return [row], {}
 
-        from vcsumo.studies.batch import silence_worker
+    with runner, ResultStore(out, CASES_TABLE, kind="capacity", params=params, exclusive=True) as store:
+        # an example case whose result cannot be read back runs again
+        have = store.read().set_index("case_key")["error"]
+        store.forget([keys[c] for c in examples_wanted if keys[c] in store and not have.get(keys[c]) and _load_example(out, c) is None])
+        tasks = [Task(keys[c], _case_task, (line, net, stock, setups[c.direction], c, out, step_s, vc_step_s, seed, assumptions, c in examples_wanted, keys[c]),
+                      label(c)) for c in todo]
 
-        out.mkdir(parents=True, exist_ok=True)
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=silence_worker,
-                                 initargs=(str(out / "workers.log"),)) as pool:
-            futs = [pool.submit(_case_task, t) for t in tasks]
-            for f in as_completed(futs):
-                done(*f.result())
-    else:
-        for t in tasks:
-            done(*_case_task(t))
-    rows: list[dict] = []
-    for case in cases:
-        if case.regime == "vc" and case.convoy_size == 1:
-            base, err = results.get(Case(case.direction, "mb", None, 1, case.pattern), (None, "no MB result"))
-            rows.append(dict(base.row, regime="vc", controller=case.controller, convoy_size=1) if base is not None
-                        else _failed_row(line, stock, net, case, err, fixed_time_s))
-            continue
-        res, err = results[case]
-        rows.append(res.row if res is not None else _failed_row(line, stock, net, case, err, fixed_time_s))
-    examples = {reg: results[c][0] for reg, c in example_of.items() if results[c][0] is not None}
-    df = pd.DataFrame(rows, columns=CAPACITY_COLUMNS)
-    for (d, pat), g in df.groupby(["direction", "stopping_pattern"]):
-        fbs = g[g.regime == "fbs"].capacity_trains_per_h.dropna()
-        if len(fbs):
-            df.loc[g.index, "gain_vs_fbs"] = (g.capacity_trains_per_h / float(fbs.iloc[0])).round(3)
-    df.to_csv(out / "capacity.csv", index=False)
-    from vcsumo.infrastructure import write_infrastructure
-    from vcsumo.plots.capacity import plot_capacity, plot_time_distance_stairs
-    from vcsumo.studies.time_distance import write_time_distance
+        def on_progress(done: int, total: int, rows: list[dict] | None) -> None:
+            if rows is None:
+                progress(0, total, f"{total} cases" + (f" ({len(todo) - total} already done)" if total < len(todo) else ""))
+            else:
+                progress(done, total, label(by_key[rows[0]["case_key"]]) + (" FAILED" if rows[0].get("error") else ""))
 
-    infra = write_infrastructure(net.topology, out)
-    td = write_time_distance(examples, setups, out, failed={reg: (c, results[c][1]) for reg, c in example_of.items() if results[c][0] is None})
-    plot_capacity(out / "capacity.csv", out / "capacity.png")
-    plot_time_distance_stairs(td, out / "time_distance.png", line.name, infrastructure=infra)
+        res = run_campaign(store, tasks, runner, to_rows, on_progress if progress else None)
+        stored = store.read().set_index("case_key")
+        results = {c: stored.loc[keys[c]].to_dict() for c in todo}
+        rows: list[dict] = []
+        for case in cases:
+            if case.regime == "vc" and case.convoy_size == 1:
+                base = results[Case(case.direction, "mb", None, 1, case.pattern)]
+                rows.append(dict(base, regime="vc", controller=case.controller, convoy_size=1) if not base["error"]
+                            else _failed_row(line, stock, net, case, base["error"], fixed_time_s))
+                continue
+            rows.append(results[case])
+        df = pd.DataFrame(rows, columns=CAPACITY_COLUMNS)
+        df["controller"] = df["controller"].fillna("")
+        for (d, pat), g in df.groupby(["direction", "stopping_pattern"]):
+            fbs = g[g.regime == "fbs"].capacity_trains_per_h.dropna()
+            if len(fbs):
+                df.loc[g.index, "gain_vs_fbs"] = (g.capacity_trains_per_h / float(fbs.iloc[0])).round(3)
+        atomic_csv(df, out / "capacity.csv")
+        from vcsumo.infrastructure import write_infrastructure
+        from vcsumo.plots.capacity import plot_capacity, plot_time_distance_stairs
+
+        infra = write_infrastructure(net.topology, out)
+        td = out / TIME_DISTANCE_FILE
+        atomic_csv(_time_distance(out, example_of, results, setups), td)
+        _atomic_plot(lambda p: plot_capacity(out / "capacity.csv", p), out / "capacity.png")
+        _atomic_plot(lambda p: plot_time_distance_stairs(td, p, line.name, infrastructure=infra), out / "time_distance.png")
+        failed = int((df.error.astype(str) != "").sum())
+        write_meta(out, {"line": line.path}, seed, {**params, "controllers": controllers, "convoy_sizes": convoy_sizes,
+                   "directions": list(directions), "patterns": list(patterns), "workers": runner.where},
+                   time.perf_counter() - t_wall, {"cases": len(df), "new_cases": res.new, "resumed_cases": res.resumed, "failed_cases": failed})
+    df.attrs.update(new_cases=res.new, resumed_cases=res.resumed, failed_cases=failed)
     return df
+
+
+def _atomic_plot(draw: Callable[[Path], None], path: Path) -> None:
+    """Draw into a temporary file and rename it (a plot is whole or absent; no plot: the old one goes)."""
+    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    draw(tmp)
+    if tmp.is_file():
+        os.replace(tmp, path)
+    else:
+        path.unlink(missing_ok=True)

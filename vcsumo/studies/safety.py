@@ -59,8 +59,10 @@ separation guard (:mod:`vcsumo.control.guard`) → fault stage, in the one offli
 K_E^F, a guard intervention beyond the service brake) is applied with the train's emergency brake
 (its true rate), everything else within its true service envelope.
 
-Rows are appended to ``safety.csv`` as scenarios finish (one whole line at a time), so an
-interrupted campaign keeps its finished scenarios and re-running the same command resumes it.
+Rows are appended to ``safety.csv`` as scenarios finish (one whole line at a time, each row once:
+the folder's store, :mod:`vcsumo.engine.store`), so an interrupted campaign keeps its finished
+scenarios and re-running the same command resumes it; scenarios run through
+:mod:`vcsumo.engine.campaign` (processes or Dask, a dying worker fails only its scenario).
 """
 
 from __future__ import annotations
@@ -68,9 +70,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import multiprocessing
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -89,6 +89,8 @@ from vcsumo.control.params import resolve_params
 from vcsumo.control.registry import check_controller
 from vcsumo.control.stack import FollowerStack, SampledController  # noqa: F401 - SampledController re-exported
 from vcsumo.dynamics import TrainParams
+from vcsumo.engine.campaign import Outcome, Runner, Task, run_campaign
+from vcsumo.engine.store import ResultStore, Table, read_table
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.plant import PlantState
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
@@ -571,66 +573,49 @@ def check_campaign(cfg: SafetyCampaign, source: Path | None = None) -> None:
         raise InputError(source, "controllers", "a controller is listed twice")
 
 
-def run_safety_campaign(cfg: SafetyCampaign, out: Path, workers: int = 1, progress: Callable[[int, int], None] | None = None) -> pd.DataFrame:
-    """Run (or resume) the campaign into ``out``; returns every row of ``safety.csv``."""
-    from vcsumo.studies.batch import _append, _repair, silence_worker
+SAFETY_TABLE = Table("safety.csv", tuple(SAFETY_COLUMNS), "key", text=("controller", "error"))
+"""The campaign's result store: one row per scenario and controller, keyed by (scenario hash, scenario, controller)."""
 
+
+def run_safety_campaign(cfg: SafetyCampaign, out: Path, workers: int | None = 1, progress: Callable[[int, int], None] | None = None,
+                        scheduler: str | None = None) -> pd.DataFrame:
+    """Run (or resume) the campaign into ``out``; returns this campaign's rows of ``safety.csv``.
+
+    Scenarios run through :mod:`vcsumo.engine.campaign` (``workers`` processes, 1: in this
+    process; or a Dask ``scheduler``); each scenario × controller row is recorded once in the
+    folder's store (:mod:`vcsumo.engine.store`) as its scenario finishes, so re-running resumes.
+    ``progress(done, total)`` counts scenarios, those already in the store included.
+    """
     check_campaign(cfg)
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "safety.csv"
-    _repair(csv_path, SAFETY_COLUMNS)
-    done = read_safety(out)
+    out = Path(out)
+    runner = Runner(workers, scheduler, log_path=out / "workers.log")
     h = cfg.scenario_hash()
-    have = set(done["key"]) if len(done) else set()
-    todo = []
-    for k in range(cfg.scenarios):
-        missing = [c for c in cfg.controllers if _row_key(h, f"s{k:05d}", c) not in have]
-        if missing:
-            todo.append((cfg, k, tuple(missing)))
-    total = cfg.scenarios
-    finished = total - len(todo)
 
-    def record(rows: list[dict]) -> None:
-        nonlocal finished
+    def to_rows(task: Task, outcome: Outcome) -> tuple[list[dict], dict]:
+        _, k, missing = task.arg
+        rows = outcome.value if outcome.ok else [{"scenario": f"s{k:05d}", "controller": c, "error": f"worker failed: {outcome.error}"} for c in missing]
         for r in rows:
             r["key"] = _row_key(h, r["scenario"], r["controller"])
             r.setdefault("error", "")
-        _append(csv_path, rows, SAFETY_COLUMNS)
-        finished += 1
-        if progress:
-            progress(finished, total)
+        return rows, {}
 
-    if progress:
-        progress(finished, total)
-    if workers <= 1 or len(todo) <= 1:
-        for task in todo:
-            record(scenario_task(task))
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=silence_worker, initargs=(str(out / "workers.log"),)) as pool:
-            pending = {pool.submit(scenario_task, task): task for task in todo}
-            while pending:
-                ready, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in ready:
-                    task = pending.pop(fut)
-                    try:
-                        rows = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - a dead worker: its scenario's rows carry the error
-                        rows = [{"scenario": f"s{task[1]:05d}", "controller": c, "error": f"worker failed: {type(exc).__name__}: {exc}"} for c in task[2]]
-                    record(rows)
-    df = read_safety(out)
+    with runner, ResultStore(out, SAFETY_TABLE, kind="safety") as store:
+        tasks = []
+        for k in range(cfg.scenarios):
+            missing = tuple(c for c in cfg.controllers if _row_key(h, f"s{k:05d}", c) not in store)
+            if missing:
+                tasks.append(Task(f"{h}:s{k:05d}", scenario_task, (cfg, k, missing), f"scenario {k}",
+                                  keys=tuple(_row_key(h, f"s{k:05d}", c) for c in missing)))
+        before = cfg.scenarios - len(tasks)
+        run_campaign(store, tasks, runner, to_rows, (lambda done, _n, _rows: progress(before + done, cfg.scenarios)) if progress else None)
+        df = read_safety(out)
     keys = {_row_key(h, f"s{k:05d}", c) for k in range(cfg.scenarios) for c in cfg.controllers}
     return df[df["key"].isin(keys)].reset_index(drop=True)
 
 
 def read_safety(out: Path) -> pd.DataFrame:
-    """``safety.csv`` of a campaign folder (last row per key), empty frame if none."""
-    path = Path(out) / "safety.csv"
-    if not path.is_file():
-        return pd.DataFrame(columns=SAFETY_COLUMNS)
-    df = pd.read_csv(path, dtype={"error": str, "key": str, "controller": str})
-    df["error"] = df["error"].fillna("")
-    return df.drop_duplicates("key", keep="last").reset_index(drop=True)
+    """``safety.csv`` of a campaign folder (one row per key), empty frame if none."""
+    return read_table(Path(out), SAFETY_TABLE)
 
 
 SUMMARY_COLUMNS = [
