@@ -281,12 +281,18 @@ def resolve_line_path(spec: str | Path) -> Path:
     if path.suffix in (".yaml", ".yml") or is_file(path):
         if not is_file(path):
             raise InputError(path, None, "line file not found")
+        if path.name == "network.yaml":
+            raise InputError(path, None, "this is a network of lines: this needs one line (a line of the network, or a line.yaml)")
         return path.resolve()
     if is_dir(path) and is_file(path / "line.yaml"):
         return (path / "line.yaml").resolve()
     candidate = project_root() / "networks" / str(spec) / "line.yaml"
     if is_file(candidate):
         return candidate
+    network = project_root() / "networks" / str(spec) / "network.yaml"
+    if is_file(network) or (is_dir(path) and is_file(path / "network.yaml")):
+        raise InputError(network if is_file(network) else path / "network.yaml", None,
+                         f"'{spec}' is a network of lines: this needs one line (a line of the network, or a line.yaml)")
     raise InputError(None, "--line", f"unknown line '{spec}' (shipped lines: {', '.join(shipped_lines()) or 'none'}; or give a path to a line.yaml)")
 
 
@@ -300,6 +306,10 @@ class Line:
     @property
     def name(self) -> str:
         return self.data.name
+
+    def source_files(self) -> list[Path]:
+        """Every file the line is read from (a network: its file and its line files)."""
+        return [self.path]
 
     def station(self, station_id: str) -> tuple[str, Station]:
         """Return (section, station) for a station id; section is 'main' or a branch id."""
