@@ -13,7 +13,9 @@ from vcsumo.sim.vc_driver import make_vc_driver
 from vcsumo.timetable import load_timetable, plan_trains
 
 from .conftest import write
-from .test_network_file import make_network
+from .test_network_file import BETA, make_network
+
+BETA_FAST = BETA.replace("line_speed_kmh: 160", "line_speed_kmh: 200")
 
 pytestmark = pytest.mark.sumo
 
@@ -124,3 +126,49 @@ def test_shipped_network_builds_in_sumo(tmp_path):
         ls = sim._ls
         assert set(ls.trafficlight.getIDList()) == topo.signal_nodes()
         assert len(ls.busstop.getIDList()) == len(topo.platforms)
+
+
+def test_the_readme_example_network_runs(in_tmp, root):
+    """A network written from the README alone (its example line joined to a second line) runs a
+    through service from one line to the other."""
+    import re
+    from pathlib import Path
+
+    from vcsumo.cli.main import main
+
+    readme = (root / "README.md").read_text()
+    blocks = dict(re.findall(r"<!-- example: (\S+) -->\s*```yaml\n(.*?)```", readme, re.S))
+    write(in_tmp / "my_line" / "line.yaml", blocks["line"])
+    write(in_tmp / "link_line.yaml", blocks["network-line"])
+    net = write(in_tmp / "network.yaml", blocks["network"])
+    tt = write(in_tmp / "through.yaml", blocks["network-timetable"])
+    assert main(["run", "--line", str(net), "--timetable", str(tt), "--regime", "fbs", "--out", "run"]) == 0
+    s = json.loads(Path("run/summary.json").read_text())
+    assert s["trains"] == 3 and s["trains_arrived"] == 3 and s["collisions"] == 0
+    st = pd.read_csv("run/stop_events.csv")
+    assert set(st.station) == {"MID", "LNK"} and len(st) == 6
+    traj = pd.read_csv("run/trajectories.csv")
+    assert set(traj.section) == {"my_line.main", "link_line.main"}
+    assert main(["run", "--line", str(net), "--timetable", str(tt), "--regime", "mb", "--end-time", "09:20", "--out", "run2"]) == 0
+    s2 = json.loads(Path("run2/summary.json").read_text())
+    assert s2["simulated_until_s"] <= 9 * 3600 + 20 * 60 + 1 and s2["trains_arrived"] == 1
+
+
+def test_batch_takes_a_network(tmp_path):
+    """vcsumo batch on a network: runs, and UIC 406 reports every line's sections in its own km."""
+    from vcsumo.studies.batch import run_batch
+
+    net_path = make_network(tmp_path / "net")
+    tt = write(tmp_path / "r.yaml", RUN)
+    df = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=0)
+    assert (df.status == "ok").all() and df.line.iloc[0] == "twolines"
+    uic = pd.read_csv(tmp_path / "b" / "uic406.csv")
+    ups = uic[(uic.direction == "up")]
+    assert {"alpha:AST-J:gj", "alpha:J:gj-J:ab", "beta:J:ab-J:spur"} <= set(ups.section)
+    assert ups.set_index("section").loc["beta:J:ab-J:spur", "from_km"] == pytest.approx(100.0)
+    # an edit of a member line file is a different batch (its resume key covers every file)
+    again = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=0)
+    assert again.attrs["resumed_runs"] == 1
+    write(tmp_path / "net" / "beta.yaml", BETA_FAST)
+    changed = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=0)
+    assert changed.attrs["new_runs"] == 1 and changed.run_key.iloc[-1] != df.run_key.iloc[0]

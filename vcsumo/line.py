@@ -311,6 +311,13 @@ class Line:
         """Every file the line is read from (a network: its file and its line files)."""
         return [self.path]
 
+    def source_digest(self) -> str:
+        """SHA-256 of the line file (a network: of the digests of all its files), hex."""
+        import hashlib
+
+        digests = [hashlib.sha256(p.read_bytes()).hexdigest() for p in self.source_files()]
+        return digests[0] if len(digests) == 1 else hashlib.sha256("|".join(digests).encode()).hexdigest()
+
     def station(self, station_id: str) -> tuple[str, Station]:
         """Return (section, station) for a station id; section is 'main' or a branch id."""
         for st in self.data.stations:

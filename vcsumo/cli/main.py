@@ -102,7 +102,7 @@ def lines_cmd() -> None:
 
 
 @cli.command("build-network")
-@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--line", "line_spec", required=True, help="Shipped line or network name, or path to a line.yaml or network.yaml")
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--force", is_flag=True, help="Rebuild even if the cached network is up to date")
 def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool) -> None:
@@ -120,7 +120,7 @@ def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool)
 
 # ----------------------------------------------------------------------------------------------
 @cli.command("run")
-@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--line", "line_spec", required=True, help="Shipped line or network name, or path to a line.yaml or network.yaml")
 @click.option("--timetable", required=True, help="Timetable name (routes/<line>/<name>.yaml) or path")
 @click.option("--regime", type=click.Choice(["fbs", "mb", "vc"]), required=True, help="Signalling regime")
 @click.option("--controller", default=None, help="VC controller: mpc, cbc, cbf-mpc, cbf-cbc, cbf-cruise (NAME:PARAMS picks a parameter file); vc only")
