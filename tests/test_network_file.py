@@ -248,3 +248,39 @@ def test_shipped_network_and_line_names(root):
     # the Bologna passante is modelled once: firenze_bologna's, with its Bologna C.le AV platform
     assert {p.section for p in topo.platforms_of("BOAV")} == {"firenze_bologna.main"}
     assert topo.named_nodes["bivio_venezia"] and topo.named_nodes["bologna_av_nord"]
+
+
+# -- fuzzing: any mutation of a valid network file loads or gives one VcsumoError naming the file
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+import yaml  # noqa: E402
+
+from vcsumo.errors import VcsumoError  # noqa: E402
+
+_NET = yaml.safe_load(NET)
+_NET_PATHS = [("name",), ("lines", 0, "line"), ("lines", 1, "from_km"), ("lines", 1, "to_km"), ("lines", 1, "branches"),
+              ("joins", 0, "id"), ("joins", 0, "end", "at"), ("joins", 0, "end", "line"), ("joins", 0, "meets", "km"),
+              ("joins", 1, "meets", "km"), ("joins", 1, "towards"), ("joins", 1, "diverging_speed_kmh"), ("joins",), ("lines",)]
+_HOSTILE = st.one_of(st.sampled_from([0, -1, 1e300, float("nan"), float("inf"), "", "end", "start", "branch:spur", "beta", [], {}, None, True]),
+                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=6))
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(path=st.sampled_from(_NET_PATHS), value=_HOSTILE)
+def test_fuzzed_network_files_never_crash(tmp_path_factory, path, value):
+    import copy
+
+    data = copy.deepcopy(_NET)
+    node = data
+    for p in path[:-1]:
+        node = node[p]
+    node[path[-1]] = value
+    folder = tmp_path_factory.mktemp("fz")
+    net_path = make_network(folder, net=yaml.safe_dump(data))
+    try:
+        net = load_network(net_path)
+    except VcsumoError as exc:
+        assert str(net_path) in str(exc) or str(folder) in str(exc), str(exc)
+        assert "\n" not in str(exc)
+        return
+    build_network_topology(net)  # a network that loads builds

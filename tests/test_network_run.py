@@ -149,6 +149,8 @@ def test_the_readme_example_network_runs(in_tmp, root):
     assert set(st.station) == {"MID", "LNK"} and len(st) == 6
     traj = pd.read_csv("run/trajectories.csv")
     assert set(traj.section) == {"my_line.main", "link_line.main"}
+    # the results folder records the network file and every line file it joins
+    assert {"line", "line_my_line", "line_link_line", "timetable"} <= set(json.loads(Path("run/meta.json").read_text())["inputs"])
     assert main(["run", "--line", str(net), "--timetable", str(tt), "--regime", "mb", "--end-time", "09:20", "--out", "run2"]) == 0
     s2 = json.loads(Path("run2/summary.json").read_text())
     assert s2["simulated_until_s"] <= 9 * 3600 + 20 * 60 + 1 and s2["trains_arrived"] == 1

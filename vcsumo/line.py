@@ -311,6 +311,10 @@ class Line:
         """Every file the line is read from (a network: its file and its line files)."""
         return [self.path]
 
+    def input_files(self) -> dict[str, Path]:
+        """The files a results folder records as inputs: ``line`` (a network: also ``line_<name>`` per line)."""
+        return {"line": self.path}
+
     def source_digest(self) -> str:
         """SHA-256 of the line file (a network: of the digests of all its files), hex."""
         import hashlib

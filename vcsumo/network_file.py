@@ -166,6 +166,9 @@ class Network(Line):
     def source_files(self) -> list[Path]:
         return [self.path] + [ln.path for ln in self.full_lines.values()]
 
+    def input_files(self) -> dict[str, Path]:
+        return {"line": self.path} | {f"line_{name}": ln.path for name, ln in self.full_lines.items()}
+
     def range_km(self, name: str) -> tuple[float, float]:
         e, d = self.entries[name], self.full_lines[name].data
         return (d.km_start if e.from_km is None else e.from_km), (d.km_end if e.to_km is None else e.to_km)

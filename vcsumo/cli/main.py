@@ -163,7 +163,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     elif controller or channel:
         raise VcsumoError(f"--controller/--channel: only the vc regime takes a controller and a channel (regime is {regime})")
     out = out or default_out("run", f"{line.name}-{tt.name}-{regime}")
-    with ResultsFolder(out, inputs={"line": line.path, "timetable": tt_path}, seed=seed,
+    with ResultsFolder(out, inputs={**line.input_files(), "timetable": tt_path}, seed=seed,
                        params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m, "end_time_s": end_s}) as rf:
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {regime}") as upd:
             scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver, end_time_s=end_s)
