@@ -14,6 +14,7 @@ times out of order and schedules faster than the train can run are errors naming
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -198,14 +199,14 @@ def _endpoint_edges(topo: Topology, name: str, line: Line, path: Path, field_nam
     if name in topo.endpoints:
         starts, goals = topo.end_edges(name)
         return [(e, -1.0) for e in starts], [(e, topo.edges[e].length_m) for e in goals]
-    if name in ("start", "end") or ":" in name:
+    if name in ("start", "end") or re.fullmatch(r"([A-Za-z0-9_\-]+:)?(start|end|branch:\w+)", name):
         kind = "unknown branch in" if "branch:" in name else "no open end"
         raise InputError(path, field_name, f"{kind} '{name}' (open ends of {line.name}: {', '.join(topo.endpoints) or 'none'}; "
                          "an end where lines are joined is not open)")
     try:
         line.station(name)
     except KeyError:
-        raise InputError(path, field_name, f"unknown station or open end '{name}' (stations of {line.name}: {', '.join(line.all_station_ids())}; "
+        raise InputError(path, field_name, f"unknown station '{name}' (stations of {line.name}: {', '.join(line.all_station_ids())}; "
                          f"open ends: {', '.join(topo.endpoints)})") from None
     plats = topo.platforms_of(name)
     return [(p.edge, p.end_pos_m) for p in plats], [(p.edge, p.end_pos_m) for p in plats]
