@@ -162,15 +162,15 @@ def test_batch_takes_a_network(tmp_path):
 
     net_path = make_network(tmp_path / "net")
     tt = write(tmp_path / "r.yaml", RUN)
-    df = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=0)
+    df = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=1)
     assert (df.status == "ok").all() and df.line.iloc[0] == "twolines"
     uic = pd.read_csv(tmp_path / "b" / "uic406.csv")
     ups = uic[(uic.direction == "up")]
     assert {"alpha:AST-J:gj", "alpha:J:gj-J:ab", "beta:J:ab-J:spur"} <= set(ups.section)
     assert ups.set_index("section").loc["beta:J:ab-J:spur", "from_km"] == pytest.approx(100.0)
     # an edit of a member line file is a different batch (its resume key covers every file)
-    again = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=0)
+    again = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=1)
     assert again.attrs["resumed_runs"] == 1
     write(tmp_path / "net" / "beta.yaml", BETA_FAST)
-    changed = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=0)
+    changed = run_batch(str(net_path), [str(tt)], ["fbs"], [1], out=tmp_path / "b", workers=1)
     assert changed.attrs["new_runs"] == 1 and changed.run_key.iloc[-1] != df.run_key.iloc[0]
