@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from vcsumo.network_file import Network
 from vcsumo.topology import Topology
 
 INFRASTRUCTURE_COLUMNS = ["kind", "id", "name", "section", "km", "track", "direction"]
@@ -26,14 +27,20 @@ INFRASTRUCTURE_FILE = "infrastructure.csv"
 
 def infrastructure_table(topo: Topology) -> pd.DataFrame:
     """Stations, platforms, signals and junctions of a line's topology (columns :data:`INFRASTRUCTURE_COLUMNS`)."""
-    line = topo.line.data
     rows: list[dict] = []
-    for st in line.stations:
-        rows.append(dict(kind="station", id=st.id, name=st.name, section="main", km=st.km, track="", direction=""))
-    for br in line.branches:
-        for st in br.stations:
-            rows.append(dict(kind="station", id=st.id, name=st.name, section=br.id, km=st.km, track="", direction=""))
-        rows.append(dict(kind="junction", id=br.id, name=br.junction_name or br.name, section="main", km=br.junction_km, track="", direction=""))
+    if isinstance(topo.line, Network):  # sections '<line>.main', '<line>.<branch>'; the joins are junctions
+        parts = [(f"{name}.", view.data) for name, view in topo.line.lines.items()]
+        for j in topo.line.spec.joins:
+            rows.append(dict(kind="junction", id=j.id, name=j.name or j.id, section=f"{j.meets.line}.main", km=j.meets.km, track="", direction=""))
+    else:
+        parts = [("", topo.line.data)]
+    for px, line in parts:
+        for st in line.stations:
+            rows.append(dict(kind="station", id=st.id, name=st.name, section=f"{px}main", km=st.km, track="", direction=""))
+        for br in line.branches:
+            for st in br.stations:
+                rows.append(dict(kind="station", id=st.id, name=st.name, section=f"{px}{br.id}", km=st.km, track="", direction=""))
+            rows.append(dict(kind="junction", id=br.id, name=br.junction_name or br.name, section=f"{px}main", km=br.junction_km, track="", direction=""))
     for p in topo.platforms.values():
         rows.append(dict(kind="platform", id=p.id, name=p.station_name, section=p.section, km=p.km_stop, track=p.track,
                          direction=topo.tracks[p.track].direction if p.track in topo.tracks else ""))

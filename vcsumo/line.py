@@ -281,12 +281,18 @@ def resolve_line_path(spec: str | Path) -> Path:
     if path.suffix in (".yaml", ".yml") or is_file(path):
         if not is_file(path):
             raise InputError(path, None, "line file not found")
+        if path.name == "network.yaml":
+            raise InputError(path, None, "this is a network of lines: this needs one line (a line of the network, or a line.yaml)")
         return path.resolve()
     if is_dir(path) and is_file(path / "line.yaml"):
         return (path / "line.yaml").resolve()
     candidate = project_root() / "networks" / str(spec) / "line.yaml"
     if is_file(candidate):
         return candidate
+    network = project_root() / "networks" / str(spec) / "network.yaml"
+    if is_file(network) or (is_dir(path) and is_file(path / "network.yaml")):
+        raise InputError(network if is_file(network) else path / "network.yaml", None,
+                         f"'{spec}' is a network of lines: this needs one line (a line of the network, or a line.yaml)")
     raise InputError(None, "--line", f"unknown line '{spec}' (shipped lines: {', '.join(shipped_lines()) or 'none'}; or give a path to a line.yaml)")
 
 
@@ -300,6 +306,21 @@ class Line:
     @property
     def name(self) -> str:
         return self.data.name
+
+    def source_files(self) -> list[Path]:
+        """Every file the line is read from (a network: its file and its line files)."""
+        return [self.path]
+
+    def input_files(self) -> dict[str, Path]:
+        """The files a results folder records as inputs: ``line`` (a network: also ``line_<name>`` per line)."""
+        return {"line": self.path}
+
+    def source_digest(self) -> str:
+        """SHA-256 of the line file (a network: of the digests of all its files), hex."""
+        import hashlib
+
+        digests = [hashlib.sha256(p.read_bytes()).hexdigest() for p in self.source_files()]
+        return digests[0] if len(digests) == 1 else hashlib.sha256("|".join(digests).encode()).hexdigest()
 
     def station(self, station_id: str) -> tuple[str, Station]:
         """Return (section, station) for a station id; section is 'main' or a branch id."""

@@ -1,9 +1,12 @@
-"""Timetables: services on a line, resolved into SUMO trains with routes and stops.
+"""Timetables: services on a line or a network of lines, resolved into SUMO trains with routes and stops.
 
 A timetable file (``routes/<line>/<name>.yaml``) lists services: train type, origin and
 destination (a station id, ``start``/``end`` of the main line, or ``branch:<id>`` for the far end of
-a branch), departure time, intermediate stops (dwell and optional scheduled times) and an
-optional repeat pattern; and convoys (services that run virtually coupled).  Everything is
+a branch; on a network of lines, a station of any line or an open end ``<line>:start``,
+``<line>:end``, ``<line>:branch:<id>``), places the route must pass (``via``: network nodes or
+stations, when the shortest route is not the one meant), departure time, intermediate stops
+(dwell and optional scheduled times) and an optional repeat pattern (``count`` trains, or every
+``every_s`` until a time); and convoys (services that run virtually coupled).  Everything is
 checked against the line before a run starts: unknown stations or trains, stops not on the route,
 times out of order and schedules faster than the train can run are errors naming the field.
 """
@@ -11,11 +14,12 @@ times out of order and schedules faster than the train can run are errors naming
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from vcsumo.config import StrictModel, is_file, load_model
 from vcsumo.errors import InputError, VcsumoError
@@ -59,11 +63,34 @@ class StopCall(StrictModel):
         return _check_clock(v)
 
 
-class Repeat(StrictModel):
-    """Repeat a service at a fixed interval (ids get a suffix .1, .2, ...)."""
+MAX_REPEAT = 1000
+"""Most trains one repeated service may expand to."""
 
-    count: int = Field(ge=1, le=1000, description="Number of trains")
+
+class Repeat(StrictModel):
+    """Repeat a service at a fixed interval (ids get a suffix .1, .2, ...): ``count`` trains, or
+    every ``every_s`` until the last departure at or before ``until``."""
+
+    count: int | None = Field(default=None, ge=1, le=MAX_REPEAT, description="Number of trains (1–1,000)")
     every_s: float = Field(ge=1, le=86400, description="Interval between departures, s (1 s–1 day)")
+    until: Clock | None = Field(default=None, description="Latest departure of a repetition, HH:MM[:SS] or s (instead of count)")
+
+    @field_validator("until")
+    @classmethod
+    def _clock(cls, v: Clock | None) -> Clock | None:
+        return _check_clock(v)
+
+    @model_validator(mode="after")
+    def _count_or_until(self) -> "Repeat":
+        if (self.count is None) == (self.until is None):
+            raise ValueError("give count or until (one of them)")
+        return self
+
+    def trains(self, departure_s: float) -> int:
+        """Number of trains when the first departs at ``departure_s`` (0 if ``until`` is before it)."""
+        if self.count is not None:
+            return self.count
+        return max(0, int(math.floor((parse_clock(self.until) - departure_s) / self.every_s + 1e-9)) + 1)
 
 
 class Service(StrictModel):
@@ -71,8 +98,9 @@ class Service(StrictModel):
 
     id: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="Service id")
     train: str = Field(description="Rolling stock name or path")
-    origin: str = Field(description="Station id, 'start', 'end' or 'branch:<id>'")
-    destination: str = Field(description="Station id, 'start', 'end' or 'branch:<id>'")
+    origin: str = Field(description="Station id, or an open end: 'start', 'end' or 'branch:<id>' (a network: '<line>:start', '<line>:end', '<line>:branch:<id>')")
+    destination: str = Field(description="Station id or an open end, as origin")
+    via: list[str] = Field(default_factory=list, description="Places the route must pass, in order: network nodes (join ids) or station ids (passing without a stop unless also in stops)")
     departure: Clock = Field(description="Departure from the origin, HH:MM[:SS] or s")
     arrival: Clock | None = Field(default=None, description="Scheduled arrival at the destination")
     stops: list[StopCall] = Field(default_factory=list, description="Intermediate stops in running order")
@@ -168,18 +196,47 @@ def load_timetable(spec: str | Path, line: Line) -> tuple[TimetableFile, Path]:
 
 def _endpoint_edges(topo: Topology, name: str, line: Line, path: Path, field_name: str) -> tuple[list[tuple[str, float]], list[tuple[str, float]]]:
     """(start candidates, goal candidates) as (edge, position of the train front)."""
-    if name in ("start", "end") or name.startswith("branch:"):
-        try:
-            starts, goals = topo.end_edges(name)
-        except KeyError:
-            raise InputError(path, field_name, f"unknown branch in '{name}' (branches: {', '.join(b.id for b in line.data.branches) or 'none'})") from None
+    if name in topo.endpoints:
+        starts, goals = topo.end_edges(name)
         return [(e, -1.0) for e in starts], [(e, topo.edges[e].length_m) for e in goals]
+    if name in ("start", "end") or re.fullmatch(r"([A-Za-z0-9_\-]+:)?(start|end|branch:\w+)", name):
+        kind = "unknown branch in" if "branch:" in name else "no open end"
+        raise InputError(path, field_name, f"{kind} '{name}' (open ends of {line.name}: {', '.join(topo.endpoints) or 'none'}; "
+                         "an end where lines are joined is not open)")
     try:
         line.station(name)
     except KeyError:
-        raise InputError(path, field_name, f"unknown station '{name}' (stations of {line.name}: {', '.join(line.all_station_ids())})") from None
+        raise InputError(path, field_name, f"unknown station '{name}' (stations of {line.name}: {', '.join(line.all_station_ids())}; "
+                         f"open ends: {', '.join(topo.endpoints)})") from None
     plats = topo.platforms_of(name)
     return [(p.edge, p.end_pos_m) for p in plats], [(p.edge, p.end_pos_m) for p in plats]
+
+
+def _via_edges(topo: Topology, name: str, line: Line, path: Path, field_name: str) -> list[str]:
+    """Edges a route passing ``name`` (a network node or a station) must run over."""
+    if name in topo.named_nodes:
+        nodes = set(topo.named_nodes[name])
+        return [e.id for e in topo.edges.values() if e.to_node in nodes]
+    try:
+        line.station(name)
+    except KeyError:
+        raise InputError(path, field_name, f"unknown node or station '{name}' (nodes: {', '.join(topo.named_nodes) or 'none'}; "
+                         f"stations: {', '.join(line.all_station_ids())})") from None
+    return [p.edge for p in topo.platforms_of(name)]
+
+
+def _route(topo: Topology, starts: list[str], legs: list[list[str]]) -> list[str] | None:
+    """Shortest route from any start edge through an edge of every leg in turn (each leg from the
+    edge the previous one ended on)."""
+    route: list[str] = []
+    current = starts
+    for goals in legs:
+        part = topo.route_edges(current, goals)
+        if part is None:
+            return None
+        route += part[1:] if route else part
+        current = [part[-1]]
+    return route
 
 
 def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: float = 0.5, check_feasible: bool = True) -> list[PlannedTrain]:
@@ -205,9 +262,11 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         _, goals = _endpoint_edges(topo, svc.destination, line, path, f"{f}.destination")
         if svc.origin == svc.destination:
             raise InputError(path, f"{f}.destination", "destination equals origin")
-        route = topo.route_edges([e for e, _ in starts], [e for e, _ in goals])
+        legs = [_via_edges(topo, v, line, path, f"{f}.via[{k}]") for k, v in enumerate(svc.via)] + [[e for e, _ in goals]]
+        route = _route(topo, [e for e, _ in starts], legs)
         if route is None:
-            raise InputError(path, f"{f}.destination", f"no route from '{svc.origin}' to '{svc.destination}' on line {line.name} (infeasible)")
+            via = f" via {', '.join(svc.via)}" if svc.via else ""
+            raise InputError(path, f"{f}.destination", f"no route from '{svc.origin}' to '{svc.destination}'{via} on {line.name} (infeasible)")
         start_pos = dict(starts)[route[0]]
         if start_pos < 0:
             start_pos = min(stock.length_m + 1.0, topo.edges[route[0]].length_m)
@@ -238,7 +297,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep, plat.end_pos_m - plat.start_pos_m))
         end_s = float(prof.starts_m[-1] + end_pos)
         final = None
-        if svc.destination not in ("start", "end") and not svc.destination.startswith("branch:"):
+        if svc.destination not in topo.endpoints:
             plat = next(p for p in topo.platforms_of(svc.destination) if p.edge == route[-1])
             final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.end_pos_m - plat.start_pos_m)
         dep0 = parse_clock(svc.departure)
@@ -269,8 +328,14 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                 need = float(run["time_s"].iloc[-1]) - prev_dep_run
                 if prev_dep_sched + need > arr_sched + 1.0:
                     raise InputError(path, f"{f}.arrival", f"infeasible: scheduled {format_clock(arr_sched)} but the train needs {need:.0f} s from its previous departure (earliest {format_clock(prev_dep_sched + need)})")
-        count = svc.repeat.count if svc.repeat else 1
+        count = svc.repeat.trains(dep0) if svc.repeat else 1
         every = svc.repeat.every_s if svc.repeat else 0.0
+        if count == 0:
+            raise InputError(path, f"{f}.repeat.until", f"until is before the departure ({format_clock(dep0)})")
+        if count > MAX_REPEAT:
+            raise InputError(path, f"{f}.repeat", f"{count} trains: at most {MAX_REPEAT} per service")
+        if dep0 + (count - 1) * every > MAX_CLOCK_S:
+            raise InputError(path, f"{f}.repeat", f"the last repetition departs after {MAX_CLOCK_S:.0f} s (one week)")
         for k in range(count):
             off = k * every
             tid = svc.id if count == 1 else f"{svc.id}.{k + 1}"

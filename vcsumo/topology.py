@@ -124,6 +124,13 @@ class Topology:
     successors: dict[str, list[str]] = field(default_factory=dict)
     turnout_speed_ms: dict[tuple[str, str], float] = field(default_factory=dict)
     platforms: dict[str, Platform] = field(default_factory=dict)
+    endpoints: dict[str, tuple[list[str], list[str]]] = field(default_factory=dict)
+    """Open ends trains may start or end at: name ('start', 'end', 'branch:<id>'; in a network
+    '<line>:start' ...) -> (edges leaving the end into the network, edges arriving at it)."""
+    km_origin: dict[str, float] = field(default_factory=dict)
+    """Section -> chainage (km) of SUMO's kilometrage origin (edge ``distance``): the line start."""
+    named_nodes: dict[str, list[str]] = field(default_factory=dict)
+    """Named places a route may be asked to pass (network joins) -> their node ids."""
 
     # ---------------------------------------------------------------------------------------
     def track_for(self, section: str, direction: str) -> Track:
@@ -186,18 +193,8 @@ class Topology:
         return None
 
     def end_edges(self, endpoint: str) -> tuple[list[str], list[str]]:
-        """(start edges, goal edges) of a line end: 'start', 'end' or 'branch:<id>'."""
-        if endpoint == "start":
-            return [self.tracks_first("main", "up")], [self.tracks_last("main", "down")]
-        if endpoint == "end":
-            return [self.tracks_first("main", "down")], [self.tracks_last("main", "up")]
-        if endpoint.startswith("branch:"):
-            bid = endpoint.split(":", 1)[1]
-            br = self.line.branch(bid)
-            if br.leaves_towards == "start":
-                return [self.tracks_first(bid, "up")], [self.tracks_last(bid, "down")]
-            return [self.tracks_first(bid, "down")], [self.tracks_last(bid, "up")]
-        raise KeyError(endpoint)
+        """(start edges, goal edges) of an open end (see :attr:`endpoints`); KeyError if unknown."""
+        return self.endpoints[endpoint]
 
     def tracks_first(self, section: str, direction: str) -> str:
         return self.track_for(section, direction).edges[0]
@@ -319,8 +316,10 @@ def _curve_integral(sec: _Section, pts: list[float]) -> list[float]:
     return acc
 
 
-def build_topology(line: Line, block_length_m: float | None = None) -> Topology:
-    """Turn a line into its track topology.  ``block_length_m`` overrides the line's block length."""
+def build_topology(line: Line, block_length_m: float | None = None, junctions_km: frozenset[float] = frozenset()) -> Topology:
+    """Turn a line into its track topology.  ``block_length_m`` overrides the line's block length;
+    ``junctions_km`` are main-line points where another line of a network joins (a node and a
+    signal on every main track, as at a branch's junction)."""
     d = line.data
     sig = d.signalling
     blk = block_length_m if block_length_m is not None else sig.block_length_m
@@ -333,7 +332,7 @@ def build_topology(line: Line, block_length_m: float | None = None) -> Topology:
         gradients=list(d.gradients), curves=list(d.curves), tunnels=list(d.tunnels), stations=list(d.stations),
         block_length_m=blk, signals_km=sig_km, single=single_main, min_block_m=sig.min_block_length_m,
     )
-    junction_kms = {_round_km(b.junction_km) for b in d.branches}
+    junction_kms = {_round_km(b.junction_km) for b in d.branches} | {_round_km(k) for k in junctions_km}
     mandatory_up = {_round_km(st.km + st.platform_length_m / 2000.0) for st in d.stations} | junction_kms
     mandatory_down = {_round_km(st.km - st.platform_length_m / 2000.0) for st in d.stations} | junction_kms
     markers = _signal_positions(main, mandatory_up | mandatory_down)
@@ -396,6 +395,15 @@ def build_topology(line: Line, block_length_m: float | None = None) -> Topology:
             if ne.section != e.section:
                 br = line.branch(ne.section if ne.section != "main" else e.section)
                 topo.turnout_speed_ms[(e.id, n)] = kmh_to_ms(br.diverging_speed_kmh)
+
+    # --- open ends and kilometrage
+    topo.km_origin["main"] = d.km_start
+    ends = [("start", "main", "up"), ("end", "main", "down")]
+    ends += [(f"branch:{br.id}", br.id, "up" if br.leaves_towards == "start" else "down") for br in d.branches]
+    for name, sec, inward in ends:
+        first, last = topo.tracks.get(f"{sec}_{inward}"), topo.tracks.get(f"{sec}_{'down' if inward == 'up' else 'up'}")
+        if first and first.edges and last and last.edges:  # (a section shorter than 1 m has no edges)
+            topo.endpoints[name] = ([first.edges[0]], [last.edges[-1]])
 
     # --- platforms
     for sec_id, stations in [("main", d.stations)] + [(b.id, b.stations) for b in d.branches]:

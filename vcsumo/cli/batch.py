@@ -34,7 +34,7 @@ def _seeds(count: int, first: int) -> list[int]:
 
 
 @click.command("batch")
-@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--line", "line_spec", required=True, help="Shipped line or network name, or path to a line.yaml or network.yaml")
 @click.option("--timetables", default=None,
               help="Timetables: comma-separated names, paths or glob patterns, e.g. 'routes/L/*.yaml' (default: every timetable of the line)")
 @click.option("--regimes", default="fbs,mb,vc", show_default=True, help="Comma-separated regimes (fbs, mb, vc)")
@@ -62,9 +62,9 @@ def batch_cmd(line_spec: str, timetables: str | None, regimes: str, n_seeds: int
     from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
     from vcsumo.studies.batch import REGIMES, resolve_timetables, run_batch, summarize
     from vcsumo.delays import load_delay_config
-    from vcsumo.line import load_line
+    from vcsumo.network_file import load_line_or_network
 
-    line = load_line(line_spec)
+    line = load_line_or_network(line_spec)
     regime_list = _csv_list(regimes, "--regimes") or []
     for r in regime_list:
         if r not in REGIMES:

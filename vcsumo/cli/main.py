@@ -77,6 +77,7 @@ def network(line, block_length_m: float | None, force: bool = False):
 def lines_cmd() -> None:
     """List the shipped lines and train types (or those under $VCSUMO_HOME)."""
     from vcsumo.line import load_line, project_root, shipped_lines
+    from vcsumo.network_file import load_network, shipped_networks
     from vcsumo.rolling_stock import load_rolling_stock, rolling_stock_dir, shipped_rolling_stock
 
     names = shipped_lines()
@@ -92,20 +93,23 @@ def lines_cmd() -> None:
         ln = load_line(name)
         out_console.print(f"[bold]{name}[/]: {ln.data.title} ({ln.data.km_start}–{ln.data.km_end} km, {ln.data.tracks} track, "
                           f"{len(ln.data.stations)} stations, {len(ln.data.branches)} branches)")
+    for name in shipped_networks():
+        net = load_network(name)
+        out_console.print(f"[bold]{name}[/] (network): {net.title} (lines {', '.join(net.lines)}; {len(net.all_station_ids())} stations)")
     for name in shipped_rolling_stock():
         st = load_rolling_stock(name)
         out_console.print(f"  train [bold]{name}[/]: {st.title}")
 
 
 @cli.command("build-network")
-@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--line", "line_spec", required=True, help="Shipped line or network name, or path to a line.yaml or network.yaml")
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--force", is_flag=True, help="Rebuild even if the cached network is up to date")
 def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool) -> None:
     """Build (or reuse) the SUMO network of a line."""
-    from vcsumo.line import load_line
+    from vcsumo.network_file import load_line_or_network
 
-    line = load_line(line_spec)
+    line = load_line_or_network(line_spec)
     net = network(line, block_length_m, force=force)
     topo = net.topology
     signals = sum(1 for n in topo.nodes.values() if n.signal)
@@ -116,7 +120,7 @@ def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool)
 
 # ----------------------------------------------------------------------------------------------
 @cli.command("run")
-@click.option("--line", "line_spec", required=True, help="Shipped line name or path to a line.yaml")
+@click.option("--line", "line_spec", required=True, help="Shipped line or network name, or path to a line.yaml or network.yaml")
 @click.option("--timetable", required=True, help="Timetable name (routes/<line>/<name>.yaml) or path")
 @click.option("--regime", type=click.Choice(["fbs", "mb", "vc"]), required=True, help="Signalling regime")
 @click.option("--controller", default=None, help="VC controller: mpc, cbc, cbf-mpc, cbf-cbc, cbf-cruise (NAME:PARAMS picks a parameter file); vc only")
@@ -126,13 +130,15 @@ def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool)
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--assumptions", default=None, help="Assumption set of the separation model: a shipped name or a .yaml path (default: etcs_typical)")
 @click.option("--seed", type=int, default=42, show_default=True, help=SEED_HELP)
+@click.option("--end-time", default=None, help="Stop the simulation at this time, HH:MM[:SS] or s (default: when every train has arrived)")
 def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, channel: str | None, out: Path | None, step_length: float | None, block_length_m: float | None,
-            assumptions: str | None, seed: int) -> None:
+            assumptions: str | None, seed: int, end_time: str | None) -> None:
     """Run a timetable on a line under one regime; write trajectories, stop events and a summary."""
     if step_length is None:
         step_length = 0.1 if regime == "vc" else 0.5
     from vcsumo.infrastructure import write_infrastructure
-    from vcsumo.line import load_line
+    from vcsumo.network_file import load_line_or_network
+    from vcsumo.units import parse_clock
     from vcsumo.plots.charts import plot_run
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.signalling.assumptions import load_assumptions
@@ -141,7 +147,13 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
 
     if step_length <= 0 or step_length > 2:
         raise VcsumoError(f"--step-length: {step_length} s is outside (0, 2] s")
-    line = load_line(line_spec)
+    end_s = None
+    if end_time is not None:
+        try:
+            end_s = float(end_time) if end_time.replace(".", "", 1).isdigit() else parse_clock(end_time)
+        except ValueError:
+            raise VcsumoError(f"--end-time: '{end_time}' is not a time (HH:MM[:SS] or s)") from None
+    line = load_line_or_network(line_spec)
     tt, tt_path = load_timetable(timetable, line)
     net = network(line, block_length_m)
     trains = plan_trains(tt, tt_path, line, net.topology, dt=step_length)
@@ -154,11 +166,11 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     elif controller or channel:
         raise VcsumoError(f"--controller/--channel: only the vc regime takes a controller and a channel (regime is {regime})")
     out = out or default_out("run", f"{line.name}-{tt.name}-{regime}")
-    with ResultsFolder(out, inputs={"line": line.path, "timetable": tt_path}, seed=seed,
-                       params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m,
+    with ResultsFolder(out, inputs={**line.input_files(), "timetable": tt_path}, seed=seed,
+                       params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m, "end_time_s": end_s,
                                "assumptions": aset.record()}) as rf:
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {regime}") as upd:
-            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver, assumptions=aset)
+            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver, end_time_s=end_s, assumptions=aset)
             res = simulate(scn, rf.path, upd)
         log.info("SUMO's messages: %s, %s", out / "sumo_messages.log", out / "sumo_errors.log")
         infra = write_infrastructure(net.topology, rf.path)

@@ -143,6 +143,7 @@ def load_study(path: str | Path) -> CapacityStudy | HeadwayStudy | BatchStudy | 
 def check_references(study, path: Path) -> None:
     """The line, trains, controllers and delay configuration named by ``study`` exist (InputError if not)."""
     from vcsumo.line import resolve_line_path
+    from vcsumo.network_file import network_path
 
     base = path.parent
 
@@ -159,7 +160,7 @@ def check_references(study, path: Path) -> None:
             rewrap(f"lines[{i}]", resolve_line_path, _resolve(ln, base))
         if study.cbf_config:
             rewrap("cbf_config", _check_controller, f"cbf-cbc:{study.cbf_config}")
-    else:
+    elif not (isinstance(study, BatchStudy) and network_path(_resolve(study.line, base)) is not None):  # batch takes a network too
         rewrap("line", resolve_line_path, _resolve(study.line, base))
     trains = [study.train] if getattr(study, "train", None) else list(getattr(study, "trains", []) or [])
     for i, t in enumerate(trains):

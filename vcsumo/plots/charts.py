@@ -59,8 +59,10 @@ def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastruct
     fig = plt.figure(figsize=(13, 9), layout="constrained")
     a1, a2 = fig.subplots(2, 1, height_ratios=[3, 1.25])
     directions = set()
+    # a network of lines (sections '<line>.main'): the main line with the most train-seconds
+    sec = "main" if (traj["section"] == "main").any() else str(traj.loc[traj["section"].str.endswith(".main"), "section"].mode().iat[0])
     for train, g in traj.groupby(traj["train"].astype(str), sort=False):
-        km = g["km"].where(g["section"] == "main")
+        km = g["km"].where(g["section"] == sec)
         if km.notna().sum() < 1:
             continue
         k = km.dropna()
@@ -72,12 +74,12 @@ def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastruct
     a1.set_xlim(t0 - 0.01 * (t1 - t0), t1 + 0.01 * (t1 - t0))
     set_clock_axis(a1.xaxis, t0, t1)
     a1.set_xlabel("clock time [HH:MM]")
-    main = traj.loc[traj["section"] == "main", "km"]
+    main = traj.loc[traj["section"] == sec, "km"]
     if len(main):
         lo, hi = float(main.min()), float(main.max())
         if infra is not None and len(infra):  # the stations just beyond the trains' ends too
             near = max(0.05 * (hi - lo), 0.5)
-            st = infra.loc[(infra["kind"] == "station") & (infra["section"] == "main"), "km"].astype(float)
+            st = infra.loc[(infra["kind"] == "station") & (infra["section"] == sec), "km"].astype(float)
             st = st[(st >= lo - near) & (st <= hi + near)]
             lo, hi = min([lo, *st]), max([hi, *st])
         pad = max(0.02 * (hi - lo), 0.05)
@@ -85,8 +87,8 @@ def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastruct
         a2.set_xlim(lo - pad, hi + pad)
     a1.grid(axis="x", alpha=0.3)
     a1.grid(axis="x", which="minor", alpha=0.12)
-    a1.set_title(f"{title or 'time–distance'} — {len(trains)} train{'s' if len(trains) != 1 else ''}")
-    distance_axis(a1, infra, sorted(directions) or ("up", "down"))
+    a1.set_title(f"{title or 'time–distance'} — {len(trains)} train{'s' if len(trains) != 1 else ''}" + ("" if sec == "main" else f" — {sec[:-5]}"))
+    distance_axis(a1, infra, sorted(directions) or ("up", "down"), section=sec)
     a2.set_xlabel("km")
     a2.set_ylabel("speed [km/h]")
     a2.set_ylim(bottom=0)

@@ -91,6 +91,7 @@ import pandas as pd
 from vcsumo.signalling.blocking_time import SUMO_MB_MARGIN_M, BrakingRule, fbs_blocking_times, sumo_reaction_time
 from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
+from vcsumo.network_file import Network
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.running_time import Stop, time_at, unhindered_run
 from vcsumo.timetable import PlannedTrain, TimetableFile
@@ -142,10 +143,12 @@ class Section:
     to_km: float
     from_name: str
     to_name: str
+    main: str = "main"
+    """Topology section of the main line (a network of lines: ``<line>.main``)."""
 
     @property
     def label(self) -> str:
-        return f"{self.from_name}-{self.to_name}"
+        return f"{self.from_name}-{self.to_name}" if self.main == "main" else f"{self.main[:-5]}:{self.from_name}-{self.to_name}"
 
     @property
     def length_m(self) -> float:
@@ -153,23 +156,33 @@ class Section:
 
 
 def line_sections(line: Line, topo: Topology) -> list[Section]:
-    """Every main-line section of both directions, in running order (see the module docstring)."""
-    d = line.data
+    """Every main-line section of both directions, in running order (see the module docstring);
+    a network of lines: of every line's main line, bounded also where the lines join."""
+    if isinstance(line, Network):
+        mains = []
+        for name, view in line.lines.items():
+            joins = {round(j.meets.km, 6): f"J:{j.id}" for j in line.spec.joins if j.meets.line == name}
+            joins |= {round(view.data.km_start if j.end.at == "start" else view.data.km_end, 6): f"J:{j.id}"
+                      for j in line.spec.joins if j.end.line == name and j.end.at in ("start", "end")}
+            mains.append((f"{name}.main", view.data, joins))
+    else:
+        mains = [("main", line.data, {})]
     out: list[Section] = []
-    for direction in ("up", "down"):
-        try:
-            track = topo.track_for("main", direction)
-        except KeyError:  # pragma: no cover - every built line has both
-            continue
-        bounds: dict[float, str] = {round(d.km_start, 6): "start", round(d.km_end, 6): "end"}
-        for p in topo.platforms.values():
-            if p.track == track.id:
-                bounds[round(p.km_stop, 6)] = p.station_id
-        for br in d.branches:
-            bounds.setdefault(round(br.junction_km, 6), f"J:{br.id}")
-        kms = sorted(bounds, reverse=not track.increasing)
-        for a, b in zip(kms, kms[1:]):
-            out.append(Section(direction, a, b, bounds[a], bounds[b]))
+    for main, d, joins in mains:
+        for direction in ("up", "down"):
+            try:
+                track = topo.track_for(main, direction)
+            except KeyError:  # pragma: no cover - every built line has both
+                continue
+            bounds: dict[float, str] = {round(d.km_start, 6): "start", round(d.km_end, 6): "end"} | joins
+            for p in topo.platforms.values():
+                if p.track == track.id:
+                    bounds[round(p.km_stop, 6)] = p.station_id
+            for br in d.branches:
+                bounds.setdefault(round(br.junction_km, 6), f"J:{br.id}")
+            kms = sorted(bounds, reverse=not track.increasing)
+            for a, b in zip(kms, kms[1:]):
+                out.append(Section(direction, a, b, bounds[a], bounds[b], main))
     return out
 
 
@@ -444,12 +457,12 @@ def capacity_consumption(
         runs[t.id] = r
     rows = []
     for sec in line_sections(line, topo):
-        track = f"main_{sec.direction}"
+        track = f"{sec.main}_{sec.direction}"
         members = []  # (entry time, train, s_A, s_B)
         for t in trains:
             prof = t.profile
             try:
-                s_a, s_b = prof.s_of("main", sec.from_km), prof.s_of("main", sec.to_km)
+                s_a, s_b = prof.s_of(sec.main, sec.from_km), prof.s_of(sec.main, sec.to_km)
             except KeyError:
                 continue
             if s_b <= s_a or topo.edges[prof.edges[prof.index_at(min(s_a + 0.5, s_b))]].track != track:

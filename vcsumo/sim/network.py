@@ -1,4 +1,4 @@
-"""Network builder: line file → plain XML → netconvert → SUMO network (cached).
+"""Network builder: line file (or network of lines) → plain XML → netconvert → SUMO network (cached).
 
 Writes ``line.nod.xml`` (nodes with z, ``rail_signal`` at every signal), ``line.edg.xml`` (one edge
 per piece of track, explicit ``length`` and kilometrage ``distance``), ``line.con.xml`` (every
@@ -7,7 +7,7 @@ per platform and track), then runs netconvert from the ``eclipse-sumo`` wheel.
 
 Builds are cached in the user cache folder (``platformdirs.user_cache_dir("vcsumo")/networks/<line>/<fingerprint>/``,
 ``$VCSUMO_CACHE`` if set), never inside the package or the source tree; the fingerprint covers the
-line file's bytes, the block-length override, the builder version and the SUMO version, so a
+line file's bytes (a network: its file's and every line file's), the block-length override, the builder version and the SUMO version, so a
 changed line file is rebuilt and an unchanged one is not.  A build goes into a temporary folder
 first and is renamed into place, so concurrent runs never see half a network.
 """
@@ -26,6 +26,8 @@ from xml.sax.saxutils import quoteattr
 
 from vcsumo.errors import SumoError
 from vcsumo.line import Line
+from vcsumo.network_file import Network
+from vcsumo.network_topology import build_network_topology
 from vcsumo.sim.sumo_paths import sumo_binary, sumo_version
 from vcsumo.topology import Topology, build_topology
 
@@ -44,8 +46,10 @@ class BuiltNetwork:
 
 
 def fingerprint(line: Line, block_length_m: float | None) -> str:
+    """Hash of every input file of the line (a network: its file and its lines') and the settings."""
     h = hashlib.sha256()
-    h.update(line.path.read_bytes())
+    for path in line.source_files():
+        h.update(path.read_bytes())
     h.update(f"|block={block_length_m}|builder={BUILDER_VERSION}|sumo={sumo_version()}".encode())
     return h.hexdigest()[:16]
 
@@ -71,7 +75,7 @@ def _build_root(line: Line) -> Path:
 
 def build_network(line: Line, block_length_m: float | None = None, force: bool = False) -> BuiltNetwork:
     """Build (or reuse) the SUMO network of a line."""
-    topo = build_topology(line, block_length_m)
+    topo = build_network_topology(line, block_length_m) if isinstance(line, Network) else build_topology(line, block_length_m)
     fp = fingerprint(line, block_length_m)
     root = _build_root(line)
     folder = root / fp
@@ -117,14 +121,13 @@ def write_plain_xml(topo: Topology, folder: Path) -> None:
     nod.append("</nodes>")
     (folder / "line.nod.xml").write_text("\n".join(nod) + "\n")
 
-    line_start = topo.line.data.km_start
     edg = ["<edges>"]
     for e in topo.edges.values():
         spread = ' spreadType="center"' if e.bidi else ""
         # SUMO kilometrage: metres from the line start, negative when it decreases along the edge
         dist_attr = ""
-        if e.section == "main":
-            dist = (e.km_from - line_start) * 1000.0
+        if e.section in topo.km_origin:
+            dist = (e.km_from - topo.km_origin[e.section]) * 1000.0
             signed = dist if e.km_to > e.km_from else -dist
             if abs(signed) > 0:
                 dist_attr = f' distance="{signed:.3f}"'

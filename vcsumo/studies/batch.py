@@ -63,7 +63,8 @@ from vcsumo.delays import DelayConfig, config_digest, inject_delays
 from vcsumo.engine.campaign import WORKER_DIED, Outcome, Runner, Task, error_message, run_campaign  # noqa: F401 - WORKER_DIED re-exported
 from vcsumo.engine.store import ResultStore, Table, atomic_csv, read_table
 from vcsumo.errors import InputError, VcsumoError
-from vcsumo.line import Line, load_line
+from vcsumo.line import Line
+from vcsumo.network_file import load_line_or_network
 from vcsumo.results import ResultsFolder, file_digest
 
 BATCH_COLUMNS = [
@@ -170,7 +171,7 @@ def _run(spec: RunSpec) -> dict:
     from vcsumo.timetable import load_timetable, plan_trains
     from vcsumo.signalling.uic406 import reference_arrivals
 
-    line = load_line(spec.line_path)
+    line = load_line_or_network(spec.line_path)
     tt_path = Path(spec.timetable_path)
     if not tt_path.is_file():
         raise InputError(tt_path, None, "timetable file not found")
@@ -190,7 +191,7 @@ def _run(spec: RunSpec) -> dict:
     params = {"regime": spec.regime, "controller": spec.controller or None, "step_length_s": spec.step_length_s,
               "block_length_m": spec.block_length_m, "delays": spec.delays, "delay_config_sha256": spec.delay_config_sha256,
               "run_key": spec.key, "batch_command": spec.command}
-    with ResultsFolder(Path(spec.run_dir), inputs={"line": line.path, "timetable": tt_path}, seed=spec.seed, params=params, overwrite=True) as rf:
+    with ResultsFolder(Path(spec.run_dir), inputs={**line.input_files(), "timetable": tt_path}, seed=spec.seed, params=params, overwrite=True) as rf:
         scn = Scenario(line, net, trains, spec.regime, step_length_s=spec.step_length_s, seed=spec.seed, driver=driver, full_outputs=False)
         res = simulate(scn, rf.path)
         if driver is not None:
@@ -295,7 +296,7 @@ def resolve_timetables(spec: str | Iterable[str | Path] | None, line: Line) -> l
 
 def default_batch_out(line: Line, delay_sha256: str, step_length_s: float, block_length_m: float | None) -> Path:
     """``results/batch-<line>-<hash>``: the same for the same line and settings, so re-running resumes."""
-    h = hashlib.sha256(f"{file_digest(line.path)}|{delay_sha256}|{step_length_s:g}|{block_length_m}".encode()).hexdigest()[:8]
+    h = hashlib.sha256(f"{line.source_digest()}|{delay_sha256}|{step_length_s:g}|{block_length_m}".encode()).hexdigest()[:8]
     return Path("results") / f"batch-{line.name}-{h}"
 
 
@@ -310,7 +311,7 @@ def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: lis
     if not seeds:
         raise InputError(None, "--seeds", "no seeds")
     d_sha = config_digest(delays)
-    l_sha = file_digest(line.path)
+    l_sha = line.source_digest()
     specs = []
     for tt in timetables:
         t_sha = file_digest(tt)
@@ -425,7 +426,7 @@ def run_batch(
     ``progress(done, total, row)`` is called before the first new run and after every one.
     """
     if not isinstance(line, Line):
-        line = load_line(line)
+        line = load_line_or_network(line)
     if step_length_s <= 0 or step_length_s > 2:
         raise VcsumoError(f"--step-length: {step_length_s} s is outside (0, 2] s")
     regimes = [r.strip() for r in regimes if r.strip()]
