@@ -160,8 +160,8 @@ def brake_range(stock: RollingStock, assumptions: AssumptionSet, kind: str) -> t
 def guaranteed_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str, v_mps: float, grade_low: float = 0.0):
     """Deceleration the train is certain to reach, m/s² (numpy arrays of v and grade accepted).
 
-    Brake at the bottom of the box (limited by the brake power, if the train has a limit, at the
-    speed v: braking from v the limit only eases), Davis A at the bottom of its box as the only
+    Brake at the bottom of the box (the service brake limited by the brake power, if the train has a
+    limit, at the speed v: braking from v the limit only eases; the emergency brake is not), Davis A at the bottom of its box as the only
     resistance, the steepest descent where it brakes (``grade_low`` < 0, rise/run; an up-grade is not
     counted), all over M·ρ.
     """
@@ -169,7 +169,7 @@ def guaranteed_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str,
     m_high = stock.mass_kg if stock.uncertainty is None else stock.uncertainty.mass_kg.high
     a_res = stock.davis_a_n if stock.uncertainty is None else stock.uncertainty.davis_a_n.low
     brake = np.asarray(low, dtype=float)
-    if stock.max_brake_power_w is not None:
+    if stock.max_brake_power_w is not None and kind == "service":  # the emergency brake (friction) is not power-limited
         p_low = stock.max_brake_power_w if stock.uncertainty is None or stock.uncertainty.max_brake_power_w is None else stock.uncertainty.max_brake_power_w.low
         brake = np.minimum(brake, p_low / (m_high * np.maximum(v_mps, 0.1)))
     a = (brake + a_res / m_high + G * np.minimum(grade_low, 0.0)) / stock.rotating_mass_factor
@@ -285,7 +285,7 @@ class RouteBraking:
         self.m_low = stock.mass_kg if box is None else box.mass_kg.low
         self.brake_low = high if strongest else low
         self.power_low = None
-        if stock.max_brake_power_w is not None and not strongest:
+        if stock.max_brake_power_w is not None and not strongest and self.kind == "service":  # the emergency brake is not power-limited
             self.power_low = stock.max_brake_power_w if box is None or box.max_brake_power_w is None else box.max_brake_power_w.low
         self.res_low = (stock.davis_a_n if box is None else box.davis_a_n.low) / self.m_high
         self.params_high = stock.params()

@@ -348,6 +348,12 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         sim.release(vid)
                         tr.controlled = False
                         tr.released_s = t
+                        if supervisor is not None:  # supervised from this very step: no step of SUMO alone
+                            ts = snap_trains[vid]
+                            perm = supervisor.permitted(vid, t, ts.s_m, ts.speed_mps, ts.gap_m, ts.leader)
+                            if perm.speed_mps < ts.speed_mps + 2.0:
+                                sim.set_speed(vid, perm.speed_mps)
+                                capped.add(vid)
                     elif not tr.controlled and vid not in commands and vid in snap_trains and math.isnan(tr.released_s) and tr.departed_at < t:
                         tr.released_s = t  # the driver decided not to drive it
             if progress is not None:
