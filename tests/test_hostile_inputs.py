@@ -406,7 +406,7 @@ ABSURD = [
     ("channel", "loss_probability", -0.1, "loss_probability", "greater than or equal to 0"),
     ("channel", "period_s", 0, "period_s", "greater than or equal to 0.01"),
     ("channel", "delay_s", -0.1, "delay_s", "greater than or equal to 0"),
-    ("guard", "leader_decel", "none", "leader_decel", "should match pattern"),
+    ("guard", "sensor", "sometimes", "sensor", "valid boolean"),
     ("study batch", "regimes", ["fbs", "warp"], "regimes[1]", "'fbs', 'mb' or 'vc'"),
     ("study headway", "regime", "warp", "regime", "'fbs', 'mb' or 'both'"),
     ("study capacity", "controllers", ["cbc", "warp"], "controllers[1]", "unknown controller 'warp'"),

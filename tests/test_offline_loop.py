@@ -113,14 +113,16 @@ def cruise_scenario():
     return cfg, draw_scenario(cfg, 0)
 
 
-def test_under_the_leaders_emergency_brake_the_cbf_stack_keeps_its_distance_and_consensus_does_not(cruise_scenario):
+def test_under_the_leaders_emergency_brake_both_stacks_keep_their_distance(cruise_scenario):
     cfg, sp = cruise_scenario
     sup = run_scenario(sp, "cbf-cbc", cfg)
     raw = run_scenario(sp, "cbc", cfg)
     assert sup["gap_violations"] == 0 and sup["collisions"] == 0 and sup["min_gap_m"] >= sup["safe_gap_m"] == 1000.0
     assert sup["emergency_activations"] >= 1
-    # consensus control with the guard still falls below its d_min of 50 m behind a leader braking at 1.32 m/s²
-    assert raw["safe_gap_m"] == 50.0 and raw["gap_violations"] >= 1 and raw["min_gap_m"] < sup["min_gap_m"]
+    # consensus control behind a leader braking at 1.32 m/s² is held by the separation guard (the separation
+    # model's relative braking on what the channel delivered): no collision, its 50 m d_min kept, far
+    # closer than the CBF's fixed 1,000 m
+    assert raw["safe_gap_m"] == 50.0 and raw["gap_violations"] == 0 and raw["collisions"] == 0 and 50.0 <= raw["min_gap_m"] < sup["min_gap_m"]
 
 
 def test_cli_campaign_writes_table_report_and_plot(tmp_path, capsys):

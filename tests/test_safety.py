@@ -117,7 +117,8 @@ def test_bad_campaign_inputs_are_one_clear_error(tmp_path):
     assert not any(tmp_path.iterdir())
 
 
-@LEADER_EMERGENCY_BEYOND_CBF_MODEL
+
+
 def test_cli_writes_table_report_and_plot(tmp_path, capsys):
     out = tmp_path / "saf"
     code = main(["study", "safety", "--scenarios", "2", "--lines", "hcmc_line1", "--controllers", "cbc,cbf-cbc", "--workers", "2", "--out", str(out)])

@@ -202,3 +202,72 @@ def test_assumption_file_is_strict(tmp_path):
     f.write_text(f.read_text().replace("brakes: 3\n", ""))
     a = load_assumptions(f)
     assert isinstance(a, AssumptionSet) and a.dead_time_s == pytest.approx(2.0) and a.absolute_braking == "service"
+
+
+def test_route_braking_on_level_track_is_the_constant_rule(etr, typical):
+    """On a level route the integrated braking equals v·T + v²/(2a) with the guaranteed a."""
+    from vcsumo.route_profile import RouteProfile
+    from vcsumo.signalling.separation import RouteBraking
+
+    prof = _level_profile(40000.0)
+    br = RouteBraking(SeparationModel(typical), etr, prof, "service")
+    a = guaranteed_decel(etr, typical, "service", 60.0, 0.0)
+    assert br.stopping_distance(1000.0, 60.0, 2.0) == pytest.approx(120.0 + 3600.0 / (2 * a), rel=1e-9)
+    v = br.permitted_speed(1000.0, 1000.0 + 120.0 + 3600.0 / (2 * a), 0.0, 2.0, 60.0)
+    assert v == pytest.approx(60.0, rel=1e-9)
+    assert isinstance(prof, RouteProfile)
+
+
+def test_route_braking_integrates_a_descent_that_starts_part_way(etr, typical):
+    """Braking from 50 m/s with a -15 ‰ descent starting 1 km ahead: the energy budget is spent at the
+    level rate for 1 km and at the descent rate after — between the all-level and all-descent figures,
+    and exactly the piecewise sum."""
+    from vcsumo.signalling.separation import RouteBraking
+
+    prof = _profile([(0.0, 5000.0, 0.0), (5000.0, 20000.0, -0.015)])
+    br = RouteBraking(SeparationModel(typical), etr, prof, "service")
+    a0 = guaranteed_decel(etr, typical, "service", 50.0, 0.0)
+    a1 = guaranteed_decel(etr, typical, "service", 50.0, -0.015)
+    d = br.stopping_distance(4000.0, 50.0, 0.0)
+    # the train body (202 m) reaches the descent with its front: the -15 ‰ counts from 4798 m on the front's edge
+    assert 1250.0 / a0 < d < 1250.0 / a1
+    e = a0 * 1000.0 + a1 * (d - 1000.0)
+    assert e == pytest.approx(1250.0, rel=0.02)
+
+
+def test_relative_braking_light_follower_behind_heavy_leader(typical):
+    """A follower that brakes harder than the leader can: the rule is positive, mid-braking, and a
+    brute-force simulation of the worst case from that gap never closes below the margin."""
+    from vcsumo.rolling_stock import RollingStock
+    from vcsumo.signalling.separation import RelativeBraking
+
+    heavy = load_rolling_stock("etr1000").model_copy(update={"name": "heavy", "emergency_brake_decel_mps2": 0.8, "service_brake_decel_mps2": 0.5,
+                                                             "uncertainty": None})
+    light = load_rolling_stock("regional_emu160").model_copy(update={"emergency_brake_decel_mps2": 1.5, "uncertainty": None})
+    assert isinstance(heavy, RollingStock)
+    model = SeparationModel(typical)
+    rule = RelativeBraking(model, light, heavy, _level_profile(40000.0))
+    assert not rule.never_outbrakes
+    v = 40.0
+    closing = rule.closing(1000.0, v, 3000.0, v, typical.dead_time_s)
+    a_f = rule.follower.decel_at(1000.0, v)
+    a_l = rule.leader.decel_at(3000.0, v)
+    assert a_f > a_l and closing > 0.0
+    assert closing == pytest.approx(relative_braking_gap(v, v, a_f, a_l, typical.dead_time_s), rel=1e-9)
+    assert simulate_min_gap(closing + 1.0, v, v, a_f, a_l, typical.dead_time_s) >= 1.0 - 0.05
+
+
+def _profile(pieces):
+    """A RouteProfile of level/graded pieces (start m, end m, gradient) on a made-up topology-free route."""
+    from vcsumo.route_profile import RouteProfile
+
+    starts = np.array([a for a, _, _ in pieces], dtype=float)
+    lengths = np.array([b - a for a, b, _ in pieces], dtype=float)
+    n = len(pieces)
+    return RouteProfile(edges=[f"e{i}" for i in range(n)], starts_m=starts, lengths_m=lengths, speeds_ms=np.full(n, 80.0),
+                        gradients=np.array([g for _, _, g in pieces], dtype=float), tunnel_factors=np.ones(n), sections=["main"] * n,
+                        km_from=starts / 1000.0, km_to=(starts + lengths) / 1000.0, point_limits=[])
+
+
+def _level_profile(length):
+    return _profile([(0.0, length, 0.0)])

@@ -85,17 +85,3 @@ signalling: {block_length_m: 1000}
         assert prof.gradients[i] == pytest.approx(6.0 / (9.81 * 600), rel=1e-9)
 
 
-def test_warns_when_a_platform_is_approached_on_a_steep_descent(tmp_path):
-    from .conftest import write
-
-    p = write(tmp_path / "d" / "line.yaml", """
-name: d
-km_start: 0
-km_end: 6
-line_speed_kmh: 120
-stations: [{id: S, name: S, km: 4.0, platform_length_m: 150}]
-gradients: [{from_km: 3.0, to_km: 3.85, permille: -25.0}]
-signalling: {block_length_m: 1000}
-""")
-    with pytest.warns(UserWarning, match=r"stations\.S: .*25\.0 ‰ descent"):
-        build_topology(load_line(p))

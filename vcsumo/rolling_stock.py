@@ -148,6 +148,19 @@ class RollingStock(StrictModel):
             max_brake_power_w=None if self.max_brake_power_w is None else point(self.max_brake_power_w),
         )
 
+    @property
+    def sumo_emergency_decel_mps2(self) -> float:
+        """The vType's ``emergencyDecel``, m/s²: SUMO warns of 'emergency braking' above it.  vcsumo
+        drives a train at most with its emergency brake plus its running resistance (VC followers
+        under speed mode 26), so the threshold is the hardest braking the train can physically show —
+        its emergency brake + 20 % plus its resistance at top speed in a tunnel over its lightest mass
+        — and a warning means braking no brake can give."""
+        box = self.uncertainty
+        m_low = self.mass_kg if box is None else box.mass_kg.low
+        v = self.max_speed_ms
+        r = self.davis_a_n + self.davis_b_n_per_mps * v + 1.5 * self.davis_c_n_per_mps2 * v * v
+        return 1.2 * self.emergency_brake_decel_mps2 + r / m_low
+
     def vtype_id(self, tunnel_factor: float = 1.0) -> str:
         """SUMO vType id; tunnels use a variant with the aerodynamic term scaled (see vtype_xml)."""
         return self.name if abs(tunnel_factor - 1.0) < 1e-9 else f"{self.name}@tf{tunnel_factor:.2f}"
@@ -166,7 +179,7 @@ class RollingStock(StrictModel):
             f'maxPower="{self.max_power_w / 1000:.4f}" maxTraction="{self.max_traction_n / 1000:.4f}" '
             f'resCoef_constant="{self.davis_a_n / 1000:.6f}" resCoef_linear="{self.davis_b_n_per_mps / 1000:.8f}" '
             f'resCoef_quadratic="{tunnel_factor * self.davis_c_n_per_mps2 / 1000:.8f}" '
-            f'decel="{self.service_brake_decel_mps2:.4f}" emergencyDecel="{self.emergency_brake_decel_mps2:.4f}" '
+            f'decel="{self.service_brake_decel_mps2:.4f}" emergencyDecel="{self.sumo_emergency_decel_mps2:.4f}" '
             f'speedFactor="1" speedDev="0"/>'
         )
 

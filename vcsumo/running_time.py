@@ -7,6 +7,11 @@ Integrates eq. 1b (:mod:`vcsumo.dynamics`) with SUMO's semi-implicit Euler schem
 * a lower limit ahead is approached braking at the service deceleration, a limit (and a turnout)
   is held until the whole train has passed it;
 * stops are approached at the service deceleration with a reaction of one step;
+* with ``curve`` given (a braking curve: the permitted speed at s towards a target, e.g.
+  :meth:`vcsumo.signalling.separation.RouteBraking.curve` — guaranteed braking integrated over the
+  gradient profile), limits and stops are approached on the braking curves of vcsumo's
+  supervision (:mod:`vcsumo.sim.supervision`) instead, stops finished at a creep speed — as the
+  trains SUMO drives under supervision run;
 * SUMO's Rail model keeps a train that has reached its own maximum speed at that speed whatever
   the gradient (``hold_at_vmax``), a SUMO simplification reproduced here.
 
@@ -22,7 +27,20 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from typing import Callable
+
 from vcsumo.dynamics import TrainParams, discrete_approach_speed, discrete_stop_speed, max_acceleration
+
+STOP_CREEP_MPS = 0.3
+"""Creep speed at the end of a supervised stop approach, m/s (as :mod:`vcsumo.sim.supervision`)."""
+
+
+def curve_speed(distance_m: float, decel_mps2: float, reaction_s: float, target_mps: float = 0.0) -> float:
+    """Largest v with v·t_r + (v² − v_t²)/(2·b) ≤ distance (the target speed at or past it), m/s."""
+    if distance_m <= 0.0:
+        return target_mps
+    k = decel_mps2 * reaction_s
+    return max(target_mps, -k + math.sqrt(k * k + target_mps * target_mps + 2.0 * decel_mps2 * distance_m))
 from vcsumo.route_profile import RouteProfile
 
 
@@ -46,11 +64,14 @@ def unhindered_run(
     stop_at_end: bool = True,
     hold_at_vmax: bool = True,
     t_max: float = 36000.0,
+    curve: Callable[[float, float, float, float], float] | None = None,
 ) -> pd.DataFrame:
     """Simulate one train alone; return a DataFrame with ``time_s, s_m, speed_mps, accel_mps2``.
 
     ``stops`` are served in order of position; ``end_s`` (default: route end) is where the run
-    ends, braking to a stop there when ``stop_at_end``.
+    ends, braking to a stop there when ``stop_at_end``.  ``curve(s, target, target speed, v)``:
+    the permitted speed of supervised braking curves (None: SUMO's own planning at the service
+    deceleration).
     """
     b = p.service_brake_decel_mps2
     L = p.length_m
@@ -78,15 +99,23 @@ def unhindered_run(
         while ti < len(targets) and targets[ti][0] <= s:
             ti += 1
         j = ti
-        horizon = v * v / (2 * b) + 2 * v * dt + 10.0
+        horizon = v * v / (2 * (b if curve is None else min(b, 0.15))) + 2 * v * dt + 10.0
         while j < len(targets) and targets[j][0] - s <= horizon:
             ps, pv = targets[j]
-            v_lim = min(v_lim, discrete_approach_speed(ps - s, pv, b, dt))
+            if curve is None:
+                v_lim = min(v_lim, discrete_approach_speed(ps - s, pv, b, dt))
+            else:
+                v_lim = min(v_lim, curve(s, ps, pv, v))
             j += 1
         # next stop
         if pending:
             gap = pending[0].s_m - s
-            v_lim = min(v_lim, discrete_stop_speed(gap, b, dt))
+            if curve is None:
+                v_lim = min(v_lim, discrete_stop_speed(gap, b, dt))
+            elif gap > 0.0:
+                v_lim = min(v_lim, max(STOP_CREEP_MPS, curve(s, pending[0].s_m, 0.0, v)))
+            else:
+                v_lim = 0.0
         # traction
         if hold_at_vmax and v >= vmax_train - 1e-9:
             v_trac = vmax_train
@@ -95,7 +124,7 @@ def unhindered_run(
             v_trac = v + a_max * dt
         v_new = max(0.0, min(v_trac, v_lim))
         s_new = s + v_new * dt
-        if pending and s_new >= pending[0].s_m - 0.05 and v_new <= b * dt + 1e-9:
+        if pending and s_new >= pending[0].s_m - 0.05 and (v_new <= b * dt + 1e-9 or curve is not None):
             # arrive: SUMO stops the train at the stop position
             s_new = max(s, min(s_new, pending[0].s_m))
             v_new = 0.0

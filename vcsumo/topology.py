@@ -427,35 +427,12 @@ def build_topology(line: Line, block_length_m: float | None = None, junctions_km
                     raise InputError(line.path, f"stations.{st.id}", "platform end is not on a node")
                 e = topo.edges[eid]
                 pid = f"{st.id}_{direction}"
-                _warn_descending_approach(topo, tr, eid, st, line)
                 topo.platforms[pid] = Platform(
                     id=pid, station_id=st.id, station_name=st.name, section=sec_id, track=tr.id, edge=eid,
                     start_pos_m=max(0.0, e.length_m - st.platform_length_m), end_pos_m=e.length_m,
                     dwell_s=st.dwell_s, km_stop=stop_km,
                 )
     return topo
-
-
-def _warn_descending_approach(topo: Topology, tr: Track, stop_edge: str, st: Station, line: Line, decel: float = 0.8) -> None:
-    """Warn when a train braking for this platform does so on a descent steeper than 5 ‰.
-
-    SUMO plans stop braking at the level-track deceleration while its braking limit falls on
-    descents, so such a train overshoots and skips the stop.
-    """
-    i = tr.edges.index(stop_edge)
-    e = topo.edges[stop_edge]
-    reach = e.speed_ms ** 2 / (2 * decel)
-    dist = 0.0
-    for k in range(i, -1, -1):
-        ek = topo.edges[tr.edges[k]]
-        if ek.gradient < -0.005:
-            warnings.warn(
-                f"{line.path}: stations.{st.id}: trains braking for the platform ({tr.direction}) run on a {-ek.gradient * 1000:.1f} ‰ descent "
-                f"{dist:.0f} m before it; SUMO may overshoot and skip the stop (keep station approaches level)", stacklevel=3)
-            return
-        dist += ek.length_m if k != i else e.length_m
-        if dist > reach:
-            return
 
 
 def _add_track(topo: Topology, sec: _Section, direction: str, pts: list[float], node_ids: list[str], increasing: bool, bidi: bool) -> None:

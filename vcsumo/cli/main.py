@@ -128,10 +128,11 @@ def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool)
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 @click.option("--step-length", type=float, default=None, help="SUMO step, s (default 0.5; 0.1 for vc)")
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
+@click.option("--assumptions", default=None, help="Assumption set of the separation model: a shipped name or a .yaml path (default: etcs_typical)")
 @click.option("--seed", type=int, default=42, show_default=True, help=SEED_HELP)
 @click.option("--end-time", default=None, help="Stop the simulation at this time, HH:MM[:SS] or s (default: when every train has arrived)")
-def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, channel: str | None, out: Path | None, step_length: float | None, block_length_m: float | None, seed: int,
-            end_time: str | None) -> None:
+def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, channel: str | None, out: Path | None, step_length: float | None, block_length_m: float | None,
+            assumptions: str | None, seed: int, end_time: str | None) -> None:
     """Run a timetable on a line under one regime; write trajectories, stop events and a summary."""
     if step_length is None:
         step_length = 0.1 if regime == "vc" else 0.5
@@ -140,6 +141,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     from vcsumo.units import parse_clock
     from vcsumo.plots.charts import plot_run
     from vcsumo.results import ResultsFolder, default_out
+    from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import load_timetable, plan_trains
 
@@ -156,17 +158,19 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
     net = network(line, block_length_m)
     trains = plan_trains(tt, tt_path, line, net.topology, dt=step_length)
     driver = None
+    aset = load_assumptions(assumptions)
     if regime == "vc":
         from vcsumo.sim.vc_driver import make_vc_driver
 
-        driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed, channel=channel)
+        driver = make_vc_driver(tt, tt_path, trains, controller or "cbf-cbc", step_length, seed, channel=channel, assumptions=aset)
     elif controller or channel:
         raise VcsumoError(f"--controller/--channel: only the vc regime takes a controller and a channel (regime is {regime})")
     out = out or default_out("run", f"{line.name}-{tt.name}-{regime}")
     with ResultsFolder(out, inputs={**line.input_files(), "timetable": tt_path}, seed=seed,
-                       params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m, "end_time_s": end_s}) as rf:
+                       params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m, "end_time_s": end_s,
+                               "assumptions": aset.record()}) as rf:
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {regime}") as upd:
-            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver, end_time_s=end_s)
+            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver, end_time_s=end_s, assumptions=aset)
             res = simulate(scn, rf.path, upd)
         log.info("SUMO's messages: %s, %s", out / "sumo_messages.log", out / "sumo_errors.log")
         infra = write_infrastructure(net.topology, rf.path)
@@ -220,15 +224,19 @@ def _parse_points(points: str | None) -> list[float] | None:
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step, s")
 @click.option("--trains-per-run", type=int, default=2, show_default=True, help="Trains released per probe (2 = blocking-time pair)")
+@click.option("--assumptions", default=None, help="Assumption set of the separation model: a shipped name or a .yaml path (default: etcs_typical)")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
-def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: str | None, block_length_m: float | None, step_length: float, trains_per_run: int, out: Path | None) -> None:
+def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: str | None, block_length_m: float | None, step_length: float, trains_per_run: int,
+                assumptions: str | None, out: Path | None) -> None:
     """Minimum headway by simulation vs blocking-time theory, per direction and measuring point."""
     from vcsumo.line import load_line
     from vcsumo.results import ResultsFolder, default_out
     from vcsumo.rolling_stock import load_rolling_stock
+    from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.studies.headway import run_headway_study
 
     line = load_line(line_spec)
+    aset = load_assumptions(assumptions)
     names = list(trains) or ([line.data.default_train] if line.data.default_train else [])
     if not names:
         raise VcsumoError(f"{line.path}: default_train: the line names no default train; pass --train")
@@ -239,13 +247,14 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
     pts = _parse_points(points)
     net = network(line, block_length_m)
     out = out or default_out("headway", line.name)
-    with ResultsFolder(out, inputs={"line": line.path}, params={"regimes": regimes, "trains": names, "block_length_m": block_length_m, "step_length_s": step_length}) as rf:
+    with ResultsFolder(out, inputs={"line": line.path}, params={"regimes": regimes, "trains": names, "block_length_m": block_length_m, "step_length_s": step_length,
+                                                                "assumptions": aset.record()}) as rf:
         with progress_bar() as prog:
             def factory(desc: str):
                 task = prog.add_task(desc, total=1.0)
                 return lambda d, t: prog.update(task, completed=d / t if t else 1.0)
 
-            df = run_headway_study(line, net, stocks, regimes, rf.path, pts, step_s=step_length, n_trains=trains_per_run, progress_factory=factory)
+            df = run_headway_study(line, net, stocks, regimes, rf.path, pts, step_s=step_length, n_trains=trains_per_run, progress_factory=factory, assumptions=aset)
     print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct",
                 "speed_at_point_mps"], csv_path=out / "headway.csv")
     out_console.print(f"wrote {out / 'headway.csv'}")
@@ -261,22 +270,26 @@ def headway_cmd(line_spec: str, regime: str, trains: tuple[str, ...], points: st
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step for FBS/MB, s")
 @click.option("--vc-step-length", type=float, default=0.2, show_default=True, help="SUMO and controller step for VC, s")
-@click.option("--fixed-time-s", type=float, default=0.0, show_default=True,
-              help="ETCS fixed times (route setting + MA transmission + reaction), s: added in the simulation and in the analytic headway; 10-20 s is typical")
+@click.option("--fixed-time-s", type=float, default=None,
+              help="ETCS fixed times (route setting + MA transmission + reaction), s, overriding the assumption set's: in the simulation and in the analytic headway; 10-20 s is typical")
 @click.option("--workers", type=int, default=None, help="Parallel processes, 1 or more (default: number of CPUs; 1 = in this process)")
 @click.option("--scheduler", default=None, help="Run the cases on a Dask cluster: address of its scheduler, tcp://HOST:PORT")
+@click.option("--assumptions", default=None, help="Assumption set of the separation model: a shipped name or a .yaml path (default: etcs_typical)")
 @click.option("--seed", type=int, default=42, show_default=True, help=SEED_HELP)
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Results folder (default: new folder under results/); run again into the same folder to finish a stopped study (only missing cases run)")
 def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_sizes: str, directions: str, patterns: str | None, block_length_m: float | None,
-                 step_length: float, vc_step_length: float, fixed_time_s: float, workers: int | None, scheduler: str | None, seed: int, out: Path | None) -> None:
+                 step_length: float, vc_step_length: float, fixed_time_s: float | None, workers: int | None, scheduler: str | None, assumptions: str | None,
+                 seed: int, out: Path | None) -> None:
     """Line capacity under FBS, MB and VC (each controller, convoy sizes), per direction and stopping pattern."""
     from vcsumo.line import load_line
     from vcsumo.results import default_out
     from vcsumo.rolling_stock import load_rolling_stock
+    from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.studies.capacity import PATTERNS, run_capacity_study
 
     line = load_line(line_spec)
+    aset = load_assumptions(assumptions)
     name = train or line.data.default_train
     if not name:
         raise VcsumoError(f"{line.path}: default_train: the line names no default train; pass --train")
@@ -294,8 +307,10 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
         pats = tuple(p.strip() for p in patterns.split(",") if p.strip())
         if any(p not in PATTERNS for p in pats):
             raise VcsumoError(f"--patterns: '{patterns}' (choose from {', '.join(PATTERNS)})")
-    if fixed_time_s < 0:
+    if fixed_time_s is not None and fixed_time_s < 0:
         raise VcsumoError(f"--fixed-time-s: {fixed_time_s} s is negative")
+    if fixed_time_s is not None:
+        aset = aset.model_copy(update={"fixed_time_s": fixed_time_s})
     from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
 
     n_workers = check_workers(workers)
@@ -314,7 +329,7 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
 
     try:
         df = run_capacity_study(line, net, stock, out, ctrls, sizes, dirs, pats, step_length, vc_step_length, seed, progress=upd,
-                                fixed_time_s=fixed_time_s, workers=n_workers, scheduler=scheduler)
+                                workers=n_workers, scheduler=scheduler, assumptions=aset)
     finally:
         if shown:
             prog.stop()

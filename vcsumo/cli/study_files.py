@@ -57,7 +57,8 @@ class CapacityStudy(_Common):
     block_length_m: BlockLength | None = None
     step_length_s: Step = 0.5
     vc_step_length_s: Step = 0.2
-    fixed_time_s: float = Field(default=0.0, ge=0, le=120, description="ETCS fixed times (route setting + MA transmission + reaction), s")
+    fixed_time_s: float | None = Field(default=None, ge=0, le=120, description="ETCS fixed times (route setting + MA transmission + reaction), s (default: the assumption set's)")
+    assumptions: str | None = Field(default=None, description="Assumption set of the separation model: shipped name or .yaml path (relative to the study file)")
     workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (default: number of CPUs)")
     seed: int = Field(default=42, ge=0, description="Random seed (not negative)")
 
@@ -70,6 +71,7 @@ class HeadwayStudy(_Common):
     block_length_m: BlockLength | None = None
     step_length_s: Step = 0.5
     trains_per_run: int = Field(default=2, ge=2, le=20, description="Trains released per probe (2–20)")
+    assumptions: str | None = Field(default=None, description="Assumption set of the separation model: shipped name or .yaml path (relative to the study file)")
 
 
 class BatchStudy(_Common):
@@ -221,8 +223,10 @@ def study_arguments(study, path: Path, out: Path | None) -> list[str]:
             args += ["--patterns", ",".join(study.patterns)]
         if study.block_length_m:
             args += ["--block-length-m", str(study.block_length_m)]
-        if study.fixed_time_s:
+        if study.fixed_time_s is not None:
             args += ["--fixed-time-s", str(study.fixed_time_s)]
+        if study.assumptions:
+            args += ["--assumptions", _resolve(study.assumptions, base)]
         if study.workers:
             args += ["--workers", str(study.workers)]
     elif isinstance(study, HeadwayStudy):
@@ -232,6 +236,8 @@ def study_arguments(study, path: Path, out: Path | None) -> list[str]:
             args += ["--train", t]
         if study.points_km:
             args += ["--points", ",".join(map(str, study.points_km))]
+        if study.assumptions:
+            args += ["--assumptions", _resolve(study.assumptions, base)]
         if study.block_length_m:
             args += ["--block-length-m", str(study.block_length_m)]
     elif isinstance(study, BatchStudy):

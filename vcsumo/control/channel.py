@@ -138,6 +138,12 @@ class Channel:
                 self.delivered += 1
         return self.latest(receiver)
 
+    def remember(self, receiver: str, msg: Message) -> None:
+        """Hold ``msg`` as delivered to ``receiver`` (a link already up when a run starts)."""
+        prev = self._latest.get((msg.sender, receiver))
+        if prev is None or prev.sent_time_s <= msg.sent_time_s:
+            self._latest[(msg.sender, receiver)] = msg
+
     def latest(self, receiver: str) -> dict[str, Message]:
         """Latest message per sender delivered to ``receiver`` so far (what the last :meth:`deliver` returned); delivers nothing."""
         return {s: m for (s, r), m in self._latest.items() if r == receiver}

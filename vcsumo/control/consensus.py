@@ -192,6 +192,8 @@ class ConsensusController:
     def __init__(self, params: CbcParams | None = None, gap_schedule: MutableMapping[str, GapReference] | None = None):
         self.params = params or CbcParams()
         self.gap_schedule: MutableMapping[str, GapReference] = gap_schedule if gap_schedule is not None else {}
+        self.default_gap: GapReference = self.params.gap
+        """The gap reference of trains without a schedule entry (the registry sets the certified spacing)."""
         self._lengths: dict[str, float] = {}
         self._own_history: deque[tuple[float, float]] = deque()
         self._last_pos: dict[str, float] = {}
@@ -243,7 +245,7 @@ class ConsensusController:
 
     def _gap_sample(self, obs: Observation, convoy: tuple[str, ...], m: int, own_index: int) -> GapSample:
         """Reference gap of train m behind m−1, evaluated with the ego's speed (consensus value)."""
-        ref: GapReference = self.gap_schedule.get(convoy[m], self.params.gap)
+        ref: GapReference = self.gap_schedule.get(convoy[m], self.default_gap)
         v = obs.ego.speed_mps
         if m == own_index:
             pm = self._fresh(obs, convoy[m - 1])

@@ -100,6 +100,9 @@ class SteadyGap(StrictModel):
     d_min_m: float = Field(default=50.0, ge=0, le=50000, description="Safety margin D_safe (standstill/minimum gap), m (0–50 km)")
     headway_s: float = Field(default=0.0, ge=0, le=600, description="Constant time headway h, s (0: constant distance; at most 600 s)")
     rbd_brake_decel_mps2: float | None = Field(default=None, gt=0, le=5, description="a_b of the relative-braking term of eq. 3.1, m/s², 0 < a ≤ 5 (none: off)")
+    certified: bool = Field(default=True, description="Track the certified spacing — the separation model's relative-braking gap under the run's "
+                                                      "assumption set (SeparationGap) — instead of eq. 3.1 with the figures above")
+    buffer_m: float = Field(default=10.0, ge=0, le=1000, description="Kept beyond the certified spacing, m (so the guard need not step in)")
 
     def gap_m(self, speed_mps: float, predecessor_speed_mps: float | None = None) -> float:
         """The steady reference at the given speeds (eq. 3.1), m."""
@@ -336,3 +339,35 @@ class JerkLimitedTransition:
         D = self.profile.distance_m
         span = d_de - self.initial_gap_m
         return GapSample(self.initial_gap_m + span * s / D, span * v / D, span * a / D)
+
+
+# ---------------------------------------------------------------------------------------------
+# The certified spacing
+
+
+class SeparationGap:
+    """The certified spacing as a gap reference: the front-to-rear gap the separation model's
+    relative-braking rule needs (:class:`vcsumo.signalling.separation.RelativeBraking`, on the
+    follower's route when it is known) for both trains at the follower's speed, with the dead time,
+    the assumption set's message-age bound and ``extra_delay_s`` (e.g. 1.5 loop steps), plus
+    ``buffer_m`` — so a controller tracking it stays just outside what the guard enforces."""
+
+    def __init__(self, model, follower, leader, profile=None, extra_delay_s: float = 0.0, buffer_m: float = 10.0):
+        from vcsumo.signalling.separation import RelativeBraking
+
+        self.model = model
+        self.follower, self.leader = follower, leader
+        self.rule = RelativeBraking(model, follower, leader, profile) if profile is not None else None
+        self.delay_s = model.dead_time_s + model.assumptions.t2t_delay_bound_s + extra_delay_s
+        self.buffer_m = buffer_m
+
+    def gap_m(self, speed_mps: float, predecessor_speed_mps: float | None = None, position_m: float | None = None) -> float:
+        v = max(speed_mps, 0.0)
+        level = self.model.vc_gap(self.follower, self.leader, v, message_age_s=self.delay_s - self.model.dead_time_s)
+        if self.rule is None or position_m is None:
+            return level + self.buffer_m
+        s_l = position_m + level + self.leader.length_m
+        return self.rule.required_gap(position_m, v, s_l, v, self.delay_s) + self.buffer_m
+
+    def evaluate(self, time_s: float, position_m: float, speed_mps: float, predecessor_speed_mps: float) -> GapSample:
+        return GapSample(self.gap_m(speed_mps, predecessor_speed_mps, position_m))

@@ -14,17 +14,21 @@ the sensed gap and speed when the Observation carries them (the predecessor is t
 ahead), else the state in the latest message the channel delivered (with its age), else nothing —
 then the predecessor may be standing at the follower's front.
 
-The guard speed (:func:`guard_speed_limit`, the one place of its maths) is today the nominal
-relative-braking-distance condition (Felez et al. eq. 12m, Wu et al. eq. 3.1): after one step the
-follower must be able to stop, braking at its guaranteed deceleration (:func:`guaranteed_decel`),
-at least d_min behind the point where the predecessor would stop braking at its strongest
-deceleration (:func:`strongest_decel`) from the state it was last known in.  The decelerations
-(emergency or service, for each train) are :class:`GuardConfig` (``controllers/guard.yaml``).
-Approaching its own stop (``Observation.next_stop_m``) the follower keeps to its service brake and
-the stop point is an obstacle too.  The formula assumes nominal braking of both trains, no brake
-build-up and no position error; the robust separation model replaces it in one place
-(:meth:`SeparationGuard.speed_limit`: the guard holds both trains' rolling stock, the observation
-gives the route, the step and the predecessor's last known state with its age).
+The guard speed (:meth:`SeparationGuard.speed_limit`) is the relative-braking rule of the one
+separation model (:class:`vcsumo.signalling.separation.RelativeBraking`, under the stack's named
+assumption set): the predecessor is placed where it is at the least, having braked as hard as it
+can (top of its box, its resistance, up-grades) since the time stamp of what the follower knows of
+it; from there both trains brake on the route's gradients — the follower with its guaranteed
+brake (bottom of its box, descents) after the dead time (reaction + half the brake build-up) and
+1.5 steps, the predecessor with its strongest — and the follower's speed for the next step is the
+largest that keeps margin + the position errors of both trains (+ the stack's d_min beyond that)
+between them at every moment (also when the follower brakes harder than the predecessor can).
+Approaching its own stop (``Observation.next_stop_m``) the follower keeps to its guaranteed
+service-brake curve to the stop point.
+
+By default the guard trusts only what the channel delivered (:class:`GuardConfig` ``sensor``: an
+on-board sensor of the train ahead — SUMO's exact gap and speed within its look-ahead, no error
+model — may be switched on explicitly).
 """
 
 from __future__ import annotations
@@ -40,14 +44,16 @@ from vcsumo.control.base import Command, Observation
 from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, leader_worst_state
 from vcsumo.units import G
 
 
 class GuardConfig(StrictModel):
-    """Decelerations of the relative-braking guard (the last filter stage of every VC controller)."""
+    """Settings of the separation guard (the last filter stage of every VC controller)."""
 
-    leader_decel: str = Field(default="emergency", pattern="^(emergency|service)$", description="Predecessor's worst case: its emergency or service deceleration")
-    follower_decel: str = Field(default="emergency", pattern="^(emergency|service)$", description="Deceleration the follower's guard may rely on (its own emergency or service brake)")
+    sensor: bool = Field(default=False, description="Trust an on-board sensor of the train ahead (SUMO's exact gap and speed within its "
+                                                     "look-ahead; no error model) besides the channel's messages")
 
 
 def load_guard(spec: str | Path | None = None, field: str | None = "--guard", base_dir: str | Path | None = None) -> GuardConfig:
@@ -103,41 +109,16 @@ class PredecessorEstimate:
     """``sensed``, ``message`` or ``none`` (then: standing at the follower's front)."""
 
 
-def predecessor_estimate(obs: Observation, predecessor_length_m: float) -> PredecessorEstimate:
-    """The best information on board: the sensed gap and speed, else the latest delivered message,
-    else "the predecessor may be standing at the follower's front"."""
+def predecessor_estimate(obs: Observation, predecessor_length_m: float, sensor: bool = True) -> PredecessorEstimate:
+    """The best information on board: the sensed gap and speed (when ``sensor``), else the latest
+    delivered message, else "the predecessor may be standing at the follower's front"."""
     s = obs.ego.position_m
-    if obs.sensed_gap_m is not None and obs.sensed_speed_mps is not None:
+    if sensor and obs.sensed_gap_m is not None and obs.sensed_speed_mps is not None:
         return PredecessorEstimate(s + obs.sensed_gap_m + predecessor_length_m, obs.sensed_speed_mps, 0.0, "sensed")
     m = obs.received.get(obs.predecessor) if obs.predecessor is not None else None
     if m is not None and math.isfinite(m.state.position_m) and math.isfinite(m.state.speed_mps):
         return PredecessorEstimate(m.state.position_m, m.state.speed_mps, max(0.0, obs.time_s - m.state.time_s), "message")
     return PredecessorEstimate(s, 0.0, math.inf, "none")
-
-
-def guard_speed_limit(follower: TrainParams, predecessor: TrainParams, profile: RouteProfile, s_m: float, v_mps: float, pred: PredecessorEstimate,
-                      step_s: float, d_min_m: float, cfg: GuardConfig, stop_m: float | None = None) -> float:
-    """The guard speed: highest follower speed for the next step, m/s (see the module doc).
-
-    ``follower``/``predecessor``: the trains' nominal models; ``profile``: the follower's route
-    (the predecessor is in the same frame); (s_m, v_mps): the follower's front and speed; ``pred``:
-    the predecessor's last known state (:func:`predecessor_estimate`); ``stop_m``: the follower's
-    own stop when it is near (None: none)."""
-    p, pp = follower, predecessor
-    near_stop = stop_m is not None
-    dec_f = p.emergency_brake_decel_mps2 if (cfg.follower_decel == "emergency" and not near_stop) else p.service_brake_decel_mps2
-    dec_l = pp.emergency_brake_decel_mps2 if cfg.leader_decel == "emergency" else pp.service_brake_decel_mps2
-    v = v_mps
-    s_l, v_l = pred.front_m, pred.speed_mps
-    g_low, _ = profile.gradient_range(s_m - p.length_m, s_m + v * v / (2 * dec_f) + 2 * v * step_s + 10.0)
-    b_f = guaranteed_decel(p, v, dec_f, g_low)
-    _, g_high = profile.gradient_range(s_l - pp.length_m, s_l + v_l * v_l / (2 * dec_l) + 10.0)
-    a_l = strongest_decel(pp, v_l, dec_l, g_high, 1.5)
-    v_guard = guard_speed(s_m, b_f, step_s, s_l, v_l, pp.length_m, a_l, d_min_m)
-    if near_stop:
-        b_serv = guaranteed_decel(p, v, p.service_brake_decel_mps2, g_low)
-        v_guard = min(v_guard, guard_speed(s_m, b_serv, step_s, stop_m, 0.0, 0.0, 1.0, 1.0))
-    return v_guard
 
 
 # -------------------------------------------------------------------------------------------
@@ -148,38 +129,62 @@ class SeparationGuard:
     """Force filter ``limit(obs, cmd) -> Command`` keeping the guard speed (see the module doc).
 
     ``follower``/``predecessor``: the two trains' rolling stock (their models and uncertainty boxes);
-    ``d_min_m``: the stack's minimum safe gap; ``config``: which decelerations the guard assumes.
-    ``interventions`` counts the steps it lowered the command; ``last_speed_mps`` and
-    ``last_force_in_n`` are the latest step's guard speed and incoming force."""
+    ``d_min_m``: the stack's minimum safe gap (kept where it exceeds the model's margin and position
+    errors); ``model``: the separation model (its assumption set); ``config``: whether a sensor is
+    trusted.  ``interventions`` counts the steps it lowered the command; ``last_speed_mps`` is the
+    latest step's guard speed where it bound (else the speed the command reaches: the guard is only
+    searched as far as asked) and ``last_force_in_n`` its incoming force."""
 
-    def __init__(self, follower: RollingStock, predecessor: RollingStock, d_min_m: float, config: GuardConfig | None = None):
+    def __init__(self, follower: RollingStock, predecessor: RollingStock, d_min_m: float, config: GuardConfig | None = None,
+                 model: SeparationModel | None = None):
         self.follower = follower
         self.predecessor = predecessor
         self.follower_params = follower.params()
         self.predecessor_params = predecessor.params()
         self.d_min_m = float(d_min_m)
         self.cfg = config or GuardConfig()
+        self.model = model or SeparationModel(load_assumptions())
         self.interventions = 0
         self.last_speed_mps = math.nan
         self.last_force_in_n = math.nan
+        self._rules: dict[int, tuple] = {}
 
-    def speed_limit(self, obs: Observation, pred: PredecessorEstimate) -> float:
-        """The guard speed for this step, m/s — the one call into the separation rule (today
-        :func:`guard_speed_limit` on the nominal models)."""
-        return guard_speed_limit(self.follower_params, self.predecessor_params, obs.profile, obs.ego.position_m, obs.ego.speed_mps, pred,
-                                 obs.step_s, self.d_min_m, self.cfg, obs.next_stop_m)
+    def _rule(self, profile: RouteProfile) -> tuple[RelativeBraking, RouteBraking]:
+        r = self._rules.get(id(profile))
+        if r is None:
+            r = (RelativeBraking(self.model, self.follower, self.predecessor, profile), RouteBraking(self.model, self.follower, profile, "service"))
+            self._rules = {id(profile): r}
+        return r
+
+    def speed_limit(self, obs: Observation, pred: PredecessorEstimate, v_cap_mps: float = math.inf) -> float:
+        """The guard speed for the next step, m/s (at most ``v_cap_mps``: only as far as asked)."""
+        rule, service = self._rule(obs.profile)
+        s, dt = obs.ego.position_m, obs.step_s
+        v_max = min(v_cap_mps, 200.0)
+        dead = self.model.dead_time_s + 1.5 * dt
+        if pred.source == "none":  # nothing known: the predecessor may stand at the follower's front
+            v_guard = 0.0
+        else:
+            a_l = rule.leader.decel_at(pred.front_m, pred.speed_mps)
+            moved, v_l = leader_worst_state(pred.speed_mps, a_l, pred.age_s)
+            s_l = pred.front_m + moved
+            gap = s_l - self.predecessor.length_m - s - max(0.0, self.d_min_m - self.model.margin_m)
+            v_guard = rule.max_speed(s, gap, s_l, v_l, dead, v_max)
+        if obs.next_stop_m is not None:  # its own stop: the guaranteed service-brake curve to it
+            v_guard = min(v_guard, service.permitted_speed(s, obs.next_stop_m, 0.0, 1.5 * dt, obs.ego.speed_mps))
+        return v_guard
 
     def limit(self, obs: Observation, cmd: Command) -> Command:
         p, prof = obs.params, obs.profile
         s, v, dt = obs.ego.position_m, obs.ego.speed_mps, obs.step_s
-        v_guard = self.speed_limit(obs, predecessor_estimate(obs, self.predecessor_params.length_m))
         grad = prof.mean_gradient(s, p.length_m)
         tf = prof.tunnel_factor_at(s)
         f_eb = -p.mass_kg * p.emergency_brake_decel_mps2  # the train brakes at most with its emergency brake
         force_in = float(cmd.force_n)
-        self.last_speed_mps, self.last_force_in_n = v_guard, force_in
         v_floor = max(0.0, v + dt * float(acceleration(p, v, f_eb, grad, tf)))
         v_cmd = max(v_floor, v + dt * float(acceleration(p, v, force_in, grad, tf)))
+        v_guard = self.speed_limit(obs, predecessor_estimate(obs, self.predecessor_params.length_m, self.cfg.sensor), v_cmd + 1e-6)
+        self.last_speed_mps, self.last_force_in_n = v_guard, force_in
         if v_cmd <= v_guard + 1e-9:
             return cmd if force_in >= f_eb else replace(cmd, force_n=f_eb)
         self.interventions += 1
@@ -192,4 +197,4 @@ class SeparationGuard:
 
 
 __all__ = ["GuardConfig", "load_guard", "guard_speed", "guaranteed_decel", "strongest_decel", "PredecessorEstimate", "predecessor_estimate",
-           "guard_speed_limit", "SeparationGuard"]
+           "SeparationGuard"]

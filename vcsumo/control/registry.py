@@ -38,6 +38,8 @@ from vcsumo.control.stack import FollowerStack, SampledController
 from vcsumo.errors import InputError
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.separation import SeparationModel
 
 ParamSpec = str | Path | BaseModel | None
 """A parameter file name (``controllers/``), a path, an already loaded settings object, or None (the default)."""
@@ -57,6 +59,9 @@ class StackContext:
     """The nominal controller's parameters (None: the name's ``:PARAMS`` or the family default)."""
     supervisor_params: ParamSpec = None
     """The supervisor's parameters (None: its default, ``controllers/cbf.yaml``); the cruise family reads it too."""
+    assumptions: AssumptionSet | None = None
+    """The separation model's assumption set the guard (and the supervisor's distance) work under
+    (None: the shipped default)."""
     guard: GuardConfig | None | bool = True
     """The separation guard's settings: True (default settings), a :class:`GuardConfig`, or
     False/None — no guard (only for a paper's own architecture, e.g. the reproductions)."""
@@ -228,7 +233,8 @@ def build_follower_stack(spec: str, ctx: StackContext) -> FollowerStack:
         controller = SampledController(controller, ctx.control_period_s)
     guard = None
     if ctx.guard is not None and ctx.guard is not False:
-        guard = SeparationGuard(ctx.ego, ctx.predecessor, d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else GuardConfig())
+        model = SeparationModel(ctx.assumptions or load_assumptions())
+        guard = SeparationGuard(ctx.ego, ctx.predecessor, d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else GuardConfig(), model)
     stage = FaultStage(controller, ctx.ego.params(), supervisor, ctx.ego_id, ctx.recovery_s, guard=guard)
     return FollowerStack(s.name, built.controller, supervisor, guard, stage, d_min, built.coupled_gap, entry.uses_plans, files)
 
@@ -241,7 +247,14 @@ def _build_cbc(ctx: StackContext, params) -> Nominal:
     from vcsumo.control.consensus import CbcParams, ConsensusController, load_cbc_params
 
     prm = params if isinstance(params, CbcParams) else load_cbc_params(params)
-    return Nominal(ConsensusController(prm), prm.gap.d_min_m, lambda v: prm.gap.gap_m(v, v))  # eq. 3.1 + constant time headway
+    ctrl = ConsensusController(prm)
+    if not prm.gap.certified:
+        return Nominal(ctrl, prm.gap.d_min_m, lambda v: prm.gap.gap_m(v, v))  # eq. 3.1 + constant time headway
+    from vcsumo.control.gap_reference import SeparationGap
+
+    model = SeparationModel(ctx.assumptions or load_assumptions())
+    ctrl.default_gap = ref = SeparationGap(model, ctx.ego, ctx.predecessor, ctx.profile, 1.5 * ctx.step_s, prm.gap.buffer_m)
+    return Nominal(ctrl, prm.gap.d_min_m, lambda v: ref.gap_m(v, v))  # the certified spacing
 
 
 def _build_mpc(ctx: StackContext, params) -> Nominal:

@@ -61,13 +61,14 @@ class BrakingRule:
     decel_mps2: float
     reaction_time_s: float = 0.0
 
-    def distance(self, v: np.ndarray | float) -> np.ndarray | float:
+    def distance(self, v: np.ndarray | float, s: np.ndarray | float | None = None) -> np.ndarray | float:
+        """Braking distance at speed v (the position s is not used: constant deceleration), m."""
         return braking_distance(v, self.decel_mps2, self.reaction_time_s)
 
 
-def _approach_point(s: np.ndarray, v: np.ndarray, rule: BrakingRule, signal_s: float) -> float:
+def _approach_point(s: np.ndarray, v: np.ndarray, rule: BrakingRule, signal_s: float, reach: np.ndarray | None = None) -> float:
     """First position a with a + D(v(a)) >= signal_s on the run."""
-    reach = s + rule.distance(v)
+    reach = s + rule.distance(v, s) if reach is None else reach
     idx = np.nonzero(reach >= signal_s)[0]
     if len(idx) == 0:
         return float(s[-1])
@@ -80,26 +81,33 @@ def _approach_point(s: np.ndarray, v: np.ndarray, rule: BrakingRule, signal_s: f
     return float(s[i - 1] + f * (s[i] - s[i - 1]))
 
 
-def fbs_blocking_times(run: pd.DataFrame, signals_s: list[float], route_end_s: float, length_m: float, rule: BrakingRule) -> pd.DataFrame:
+def fbs_blocking_times(run: pd.DataFrame, signals_s: list[float], route_end_s: float, length_m: float, rule: BrakingRule,
+                       approach_offset_m: float = 0.0, clear_offset_m: float = 0.0) -> pd.DataFrame:
     """Blocking time of every block on the run (one row per block).
 
     Columns: ``block_start_m, block_end_m, approach_m, t_approach_s, t_clear_s, blocking_time_s``.
     Blocks whose approach point lies before the run's start are approached at the start (the
-    follower is released there).
+    follower is released there).  ``approach_offset_m``: the follower must be able to stop this far
+    before a signal (its position error); ``clear_offset_m``: the rear of the train ahead must be
+    this far beyond the block's end before the block is released (overlap, position error).  A train
+    releases every block it still occupies when it leaves the route at ``route_end_s``.
     """
     s = run["s_m"].to_numpy()
     v = run["speed_mps"].to_numpy()
     s0 = float(s[0])
     sig = sorted(x for x in signals_s if x > s0 + 1e-6)
     ends = sig[1:] + [route_end_s]
+    reach = s + rule.distance(v, s) + approach_offset_m
     rows = []
     for start, end in zip(sig, ends):
-        a = max(_approach_point(s, v, rule, start), s0)
+        a = max(_approach_point(s, v, rule, start, reach), s0)
         t_app = float(time_at(run, a)[0])
-        t_clr = float(time_at(run, min(end + length_m, float(s[-1])))[0])
-        if end + length_m > s[-1] + 1e-6:
+        # a train leaving the route (its front at the end) releases every block it still occupies
+        clear = min(end + clear_offset_m + length_m, route_end_s)
+        t_clr = float(time_at(run, min(clear, float(s[-1])))[0])
+        if clear > s[-1] + 1e-6:
             # the run ends before the tail clears: extrapolate at the last speed
-            t_clr = float(run["time_s"].iloc[-1]) + (end + length_m - s[-1]) / max(float(v[-1]), 0.1)
+            t_clr = float(run["time_s"].iloc[-1]) + (clear - s[-1]) / max(float(v[-1]), 0.1)
         rows.append((start, end, a, t_app, t_clr, t_clr - t_app))
     return pd.DataFrame(rows, columns=["block_start_m", "block_end_m", "approach_m", "t_approach_s", "t_clear_s", "blocking_time_s"])
 
@@ -120,7 +128,7 @@ def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m:
     vy = np.interp(grid, s, v)
     L = length_m(vy) if callable(length_m) else length_m
     margin = sumo_mb_margin(vy) if margin_m == SUMO_MB_MARGIN_M else margin_m
-    ahead = grid + rule.distance(vy) + margin + L
+    ahead = grid + rule.distance(vy, grid) + margin + L
     t_y = time_at(run, grid)
     t_ahead = time_at(run, np.minimum(ahead, s[-1]))
     over = ahead > s[-1]

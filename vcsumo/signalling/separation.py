@@ -42,6 +42,7 @@ import numpy as np
 
 from vcsumo.dynamics import running_resistance
 from vcsumo.rolling_stock import RollingStock
+from vcsumo.running_time import curve_speed as authority_speed  # the braking curve: v·T + (v² − v_t²)/(2a) ≤ distance
 from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.units import G
 
@@ -98,19 +99,6 @@ def relative_braking_gap(v_f: float, v_l: float, a_f: float, a_l: float, dead_ti
 def absolute_braking_gap(v_f: float, a_f: float, dead_time_s: float) -> float:
     """Distance to stop behind a fixed point: v·T + v²/(2·a), m (numpy arrays accepted)."""
     return v_f * dead_time_s + v_f * v_f / (2.0 * a_f)
-
-
-def authority_speed(distance_m: float, a_f: float, dead_time_s: float, target_speed_mps: float = 0.0) -> float:
-    """Permitted speed on a braking curve: the largest v with v·T + (v² − v_t²)/(2·a) ≤ distance, m/s.
-
-    ``distance_m`` runs to the target (end of authority, stopping point, start of a lower speed
-    limit); at or past it the permitted speed is the target speed.
-    """
-    if distance_m <= 0.0:
-        return target_speed_mps
-    k = a_f * dead_time_s
-    v = -k + math.sqrt(k * k + target_speed_mps * target_speed_mps + 2.0 * a_f * distance_m)
-    return max(v, target_speed_mps)
 
 
 def leader_worst_state(v_l: float, a_l: float, age_s: float) -> tuple[float, float]:
@@ -172,8 +160,8 @@ def brake_range(stock: RollingStock, assumptions: AssumptionSet, kind: str) -> t
 def guaranteed_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str, v_mps: float, grade_low: float = 0.0):
     """Deceleration the train is certain to reach, m/s² (numpy arrays of v and grade accepted).
 
-    Brake at the bottom of the box (limited by the brake power, if the train has a limit, at the
-    speed v: braking from v the limit only eases), Davis A at the bottom of its box as the only
+    Brake at the bottom of the box (the service brake limited by the brake power, if the train has a
+    limit, at the speed v: braking from v the limit only eases; the emergency brake is not), Davis A at the bottom of its box as the only
     resistance, the steepest descent where it brakes (``grade_low`` < 0, rise/run; an up-grade is not
     counted), all over M·ρ.
     """
@@ -181,7 +169,7 @@ def guaranteed_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str,
     m_high = stock.mass_kg if stock.uncertainty is None else stock.uncertainty.mass_kg.high
     a_res = stock.davis_a_n if stock.uncertainty is None else stock.uncertainty.davis_a_n.low
     brake = np.asarray(low, dtype=float)
-    if stock.max_brake_power_w is not None:
+    if stock.max_brake_power_w is not None and kind == "service":  # the emergency brake (friction) is not power-limited
         p_low = stock.max_brake_power_w if stock.uncertainty is None or stock.uncertainty.max_brake_power_w is None else stock.uncertainty.max_brake_power_w.low
         brake = np.minimum(brake, p_low / (m_high * np.maximum(v_mps, 0.1)))
     a = (brake + a_res / m_high + G * np.minimum(grade_low, 0.0)) / stock.rotating_mass_factor
@@ -264,3 +252,177 @@ class SeparationModel:
         """Distance a fixed-block train needs to stop at a signal (its end of authority), m."""
         a_f = self.follower_decel(follower, v_mps, grade_low)
         return absolute_braking_gap(v_mps, a_f, self.dead_time_s) + self.assumptions.position_error_m
+
+
+# -------------------------------------------------------------------------------------------
+# Braking curves along a route (gradient profile integrated, as ETCS braking curves are)
+
+
+class RouteBraking:
+    """A train's guaranteed braking along its route, integrated over the gradient profile.
+
+    Braking from v to v_t over a stretch uses the energy budget v²/2 − v_t²/2 = ∫ a(x) dx, with
+    a(x) the guaranteed deceleration while the front is at x (brake at the bottom of the box,
+    Davis A, the lowest gradient under the train's body there: min over [x − L, x], counted only
+    when it is a descent; over ρ).  That is exact for the piecewise-constant gradient profile and
+    continuous in position, unlike one worst gradient for the whole distance.  The brake part is
+    taken at the speed the braking starts from (a brake-power limit only eases as the train slows).
+
+    * :meth:`permitted_speed` — the braking curve towards a target (supervision, running times);
+    * :meth:`stopping_distance` — how far the train runs before it stands (health monitor,
+      analytic headways).
+    """
+
+    def __init__(self, model: "SeparationModel", stock: RollingStock, profile, kind: str | None = None, strongest: bool = False):
+        self.model = model
+        self.stock = stock
+        self.kind = kind or model.assumptions.absolute_braking
+        self.strongest = strongest
+        a = model.assumptions
+        low, high = brake_range(stock, a, self.kind)
+        box = stock.uncertainty
+        self.m_high = stock.mass_kg if box is None else box.mass_kg.high
+        self.m_low = stock.mass_kg if box is None else box.mass_kg.low
+        self.brake_low = high if strongest else low
+        self.power_low = None
+        if stock.max_brake_power_w is not None and not strongest and self.kind == "service":  # the emergency brake is not power-limited
+            self.power_low = stock.max_brake_power_w if box is None or box.max_brake_power_w is None else box.max_brake_power_w.low
+        self.res_low = (stock.davis_a_n if box is None else box.davis_a_n.low) / self.m_high
+        self.params_high = stock.params()
+        if box is not None:
+            self.params_high = self.params_high.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
+        self.rho = 1.0 if strongest else stock.rotating_mass_factor
+        starts = np.asarray(profile.starts_m, dtype=float)
+        lengths = np.asarray(profile.lengths_m, dtype=float)
+        if strongest:  # the steepest up-grade under the body helps the train ahead; a descent is not counted
+            g_low = np.array([max(profile.gradient_range(x - stock.length_m, x + ln - 1e-6)[1], 0.0) for x, ln in zip(starts, lengths)])
+        else:  # the lowest gradient under the body while the front is on the edge (not the next one)
+            g_low = np.array([min(profile.gradient_range(x - stock.length_m, x + ln - 1e-6)[0], 0.0) for x, ln in zip(starts, lengths)])
+        self.x = np.concatenate([starts, [starts[-1] + lengths[-1]]])
+        self.g_low = g_low
+        self.grade_integral = np.concatenate([[0.0], np.cumsum(g_low * lengths)])
+        worst = self.brake_part(stock.max_speed_ms) + G * float(g_low.min()) / self.rho
+        if worst <= 0.0 and not strongest:
+            raise ValueError(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
+
+    def brake_part(self, v_mps: float) -> float:
+        """Guaranteed (strongest: hardest) deceleration without the gradient at speed v, m/s²; the
+        strongest counts the whole running resistance at v (it only falls as the train slows)."""
+        if self.strongest:
+            return self.brake_low + float(running_resistance(self.params_high, v_mps, 1.5)) / self.m_low
+        b = self.brake_low
+        if self.power_low is not None:
+            b = min(b, self.power_low / (self.m_high * max(v_mps, 0.1)))
+        return (b + self.res_low) / self.rho
+
+    def _grade_integral_at(self, s: float) -> float:
+        x = self.x
+        if s <= x[0]:
+            return self.g_low[0] * (s - x[0])
+        if s >= x[-1]:
+            return float(self.grade_integral[-1]) + self.g_low[-1] * (s - x[-1])
+        return float(np.interp(s, x, self.grade_integral))
+
+    def decel_at(self, s: float, v_mps: float) -> float:
+        """Guaranteed deceleration with the front at s, m/s²."""
+        i = min(max(int(np.searchsorted(self.x, s, side="right")) - 1, 0), len(self.g_low) - 1)
+        return self.brake_part(v_mps) + G * float(self.g_low[i]) / self.rho
+
+    def energy(self, s0: float, s1: float, v_mps: float) -> float:
+        """∫ a(x) dx over [s0, s1] for braking that starts at speed v, m²/s²."""
+        return self.brake_part(v_mps) * (s1 - s0) + G * (self._grade_integral_at(s1) - self._grade_integral_at(s0)) / self.rho
+
+    def permitted_speed(self, s_m: float, target_m: float, target_speed_mps: float, dead_time_s: float, v_mps: float) -> float:
+        """The braking curve at s: the largest speed from which the train, after the dead time,
+        brakes to ``target_speed_mps`` by ``target_m``, m/s (the target speed at or past it)."""
+        if target_m <= s_m:
+            return target_speed_mps
+        e = 0.5 * target_speed_mps * target_speed_mps + self.energy(s_m, target_m, max(v_mps, target_speed_mps))
+        a = self.decel_at(s_m, v_mps)
+        k = a * dead_time_s
+        return max(target_speed_mps, -k + math.sqrt(k * k + 2.0 * max(e, 0.0)))
+
+    def stopping_distance(self, s_m: float, v_mps: float, dead_time_s: float) -> float:
+        """Distance from the front at s to where the train stands, braking after the dead time, m."""
+        if v_mps <= 0.0:
+            return 0.0
+        x0 = s_m + v_mps * dead_time_s
+        b = self.brake_part(v_mps)
+        need = 0.5 * v_mps * v_mps
+        # F(x) = b·x + g·Gi(x)/ρ is increasing (a > 0 everywhere); invert it past x0
+        xs = self.x
+        f = b * xs + G * self.grade_integral / self.rho
+        f0 = b * x0 + G * self._grade_integral_at(x0) / self.rho
+        target = f0 + need
+        if target <= f[-1]:
+            x_stop = float(np.interp(target, f, xs))
+        else:  # beyond the route's end the last edge's gradient continues
+            x_stop = float(xs[-1]) + (target - float(f[-1])) / (b + G * float(self.g_low[-1]) / self.rho)
+        x_stop = max(x_stop, x0)
+        return x_stop - s_m
+
+    def curve(self, dead_time_s: float):
+        """``curve(s, target, target speed, v)`` for :func:`vcsumo.running_time.unhindered_run`."""
+
+        def f(s_m: float, target_m: float, target_speed_mps: float, v_mps: float) -> float:
+            return self.permitted_speed(s_m, target_m, target_speed_mps, dead_time_s, v_mps)
+
+        return f
+
+
+# -------------------------------------------------------------------------------------------
+# Relative braking along a route (the VC guard and the run-health monitor of coupled followers)
+
+
+class RelativeBraking:
+    """The relative-braking rule for one follower behind one leader, on the follower's route.
+
+    Both trains brake on the route's gradient profile (:class:`RouteBraking`): the follower with its
+    guaranteed relative-braking brake after the dead time, the leader with its strongest, from its
+    worst state.  When the follower cannot out-brake the leader anywhere (its best guaranteed
+    deceleration on level track is below the leader's hardest brake alone), the closing is largest
+    when both stand, and the rule is the stopping-point form — exact on the gradient profile and
+    continuous in position.  Otherwise (a light follower behind a heavy leader) the worst moment may
+    be mid-braking: the rule is :func:`relative_braking_gap` with the weakest follower and hardest
+    leader decelerations over their braking distances.
+    """
+
+    def __init__(self, model: SeparationModel, follower: RollingStock, leader: RollingStock, profile):
+        kind = model.assumptions.relative_braking
+        self.model = model
+        self.follower = RouteBraking(model, follower, profile, kind)
+        self.leader = RouteBraking(model, leader, profile, kind, strongest=True)
+        self.profile = profile
+        _, high_l = brake_range(leader, model.assumptions, kind)
+        self.never_outbrakes = self.follower.brake_part(0.0) <= high_l
+
+    def closing(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
+        """How much the front-to-rear gap closes in the worst case from now, m (≥ 0)."""
+        d_f = self.follower.stopping_distance(s_f, v_f, dead_time_s)
+        d_l = self.leader.stopping_distance(s_l, v_l, 0.0)
+        if self.never_outbrakes:
+            return max(0.0, d_f - d_l)  # stopping points: the gap is smallest when both stand
+        a_f = min(self.follower.decel_at(x, v_f) for x in (s_f, s_f + d_f))
+        a_l = max(self.leader.decel_at(x, v_l) for x in (s_l, s_l + d_l))
+        return relative_braking_gap(v_f, v_l, max(a_f, 1e-3), a_l, dead_time_s)
+
+    def required_gap(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
+        """Front-to-rear gap the follower needs: the closing plus margin and position errors, m."""
+        return self.model.margin_m + self.closing(s_f, v_f, s_l, v_l, dead_time_s)
+
+    def max_speed(self, s_f: float, gap_m: float, s_l: float, v_l: float, dead_time_s: float, v_max: float, tol_mps: float = 0.01) -> float:
+        """Largest follower speed in [0, v_max] that keeps the rule with ``gap_m`` to the leader's
+        rear (``s_l``: the leader's front), m/s."""
+        room = gap_m - self.model.margin_m
+        if room < 0.0:
+            return 0.0
+        if self.closing(s_f, v_max, s_l, v_l, dead_time_s) <= room:
+            return v_max
+        lo, hi = 0.0, v_max
+        while hi - lo > tol_mps:
+            mid = 0.5 * (lo + hi)
+            if self.closing(s_f, mid, s_l, v_l, dead_time_s) <= room:
+                lo = mid
+            else:
+                hi = mid
+        return lo

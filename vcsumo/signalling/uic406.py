@@ -106,7 +106,7 @@ SECTION_COLUMNS = [
 
 
 class _Rule(Protocol):
-    def distance(self, v: np.ndarray | float) -> np.ndarray | float: ...
+    def distance(self, v: np.ndarray | float, s: np.ndarray | float | None = None) -> np.ndarray | float: ...
 
 
 @dataclass(frozen=True)
@@ -116,8 +116,8 @@ class MarginRule:
     base: BrakingRule
     margin_m: float
 
-    def distance(self, v):
-        return self.base.distance(v) + self.margin_m
+    def distance(self, v, s=None):
+        return self.base.distance(v, s) + self.margin_m
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ class GapRule:
 
     gap_m: float
 
-    def distance(self, v):
+    def distance(self, v, s=None):
         return np.zeros_like(np.asarray(v, dtype=float)) + self.gap_m
 
 

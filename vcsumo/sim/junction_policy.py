@@ -80,7 +80,7 @@ class JunctionPolicy:
     """Follower id -> the merge signal it must be able to stop at (none: no braking curve to a signal)."""
     signal_decel: str = "emergency"
     """Deceleration of the braking curve to a merge signal: the follower's ``emergency`` or
-    ``service`` brake (the VC guard's ``follower_decel``)."""
+    ``service`` brake."""
     linked: set[str] = field(default_factory=set)
     """Followers whose predecessor's first message has arrived."""
     speed_profile_caps: int = 0

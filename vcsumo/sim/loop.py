@@ -9,12 +9,14 @@ One loop for every regime:
   safety supervisor) through ``setSpeed`` with speed mode 30.
 
 Every step the loop switches vTypes at tunnel portals (tunnel drag, the same for every regime),
-measures the gap from each train to the train ahead, counts gap violations, SUMO collisions and
-emergency braking, and records measuring-point passages.  A gap violation is the gap falling below
-the minimum safe gap that applies to the train at that moment (the controller's d_min while a
-vcsumo driver drives it, else the 50 m moving-block margin above 30 km/h); the time spent below it
-is reported too (``gap_violation_time_s``), also when a train starts below it (a convoy forming
-behind a leader that left less than d_min ahead), and so is the minimum gap.
+gives every train SUMO drives its permitted speed on braking curves with its guaranteed
+deceleration (:mod:`vcsumo.sim.supervision`: stops, speed restrictions, end of track and the
+regime's end of movement authority, so no train plans with more braking than it has), measures
+the gap from each train to the train ahead and accounts the run's health at every step from the
+first (:mod:`vcsumo.sim.health`: margin to the regime's safe separation from
+:mod:`vcsumo.signalling.separation` at every speed, overspeed, braking beyond service, overruns,
+collisions with impact speed), and records measuring-point passages.  The separation model's
+assumptions are a named set (``Scenario.assumptions``), recorded in the summary.
 Everything is written into the run's folder as tidy CSV plus SUMO's own outputs.
 
 If SUMO fails during the run (an error it stops on, or the simulation closed), :func:`simulate`
@@ -38,14 +40,17 @@ import pandas as pd
 
 from vcsumo.errors import SumoError, VcsumoError
 from vcsumo.line import Line
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.regimes import REGIMES, Regime
+from vcsumo.signalling.separation import SeparationModel
+from vcsumo.sim.health import HealthMonitor
 from vcsumo.sim.network import BuiltNetwork
+from vcsumo.sim.interlocking import MergeLocking
+from vcsumo.sim.supervision import BrakingCurveSupervisor
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
-from vcsumo.sim.sumo_io import write_sumocfg
+from vcsumo.sim.sumo_io import read_sumo_log, write_sumocfg
 from vcsumo.timetable import PlannedTrain, routes_xml
 
-REGIMES = ("fbs", "mb", "vc")
-GAP_TOLERANCE_M = 0.01
-"""Numerical tolerance of the gap-violation test, m (a guard holding exactly d_min is not a violation)."""
 
 
 @dataclass(frozen=True)
@@ -87,8 +92,8 @@ class Driver(Protocol):
         """Speed commands (m/s) for the trains it drives this step; other trains stay with SUMO."""
         ...
 
-    def safe_gap_m(self, train_id: str) -> float:
-        """Minimum safe gap (the controller's d_min) of a train while the driver drives it, m."""
+    def predecessor_of(self, train_id: str) -> str | None:
+        """The train a follower is coupled behind (None: not a convoy follower)."""
         ...
 
 
@@ -103,20 +108,21 @@ class Scenario:
     step_length_s: float = 0.5
     record_period_s: float = 1.0
     measuring_points: list[MeasuringPoint] = field(default_factory=list)
-    min_safe_gap_m: float = 50.0
-    """Minimum safe gap of trains SUMO drives (FBS/MB: the 50 m moving-block margin), m; trains a
-    vcsumo driver drives are held to the driver's ``safe_gap_m`` (the controller's d_min)."""
+    assumptions: AssumptionSet | None = None
+    """The separation model's assumption set (None: the shipped default, etcs_typical)."""
     seed: int = 42
     end_time_s: float | None = None
     lookahead_m: float = 30000.0
     driver: Driver | None = None
-    on_sight_speed_mps: float = 30.0 / 3.6 + 0.5
-    """Below this follower speed, FBS/MB allow on-sight movement (SUMO's MB margin applies only from
-    30 km/h; trains hover at that boundary, hence +0.5 m/s): gaps there are reported but not counted
-    as violations.  Trains driven by a vcsumo driver are always held to their ``safe_gap_m``."""
-    fixed_time_s: float = 0.0
-    """ETCS-style fixed times (route setting + MA transmission + reaction) the trains SUMO drives
-    see on top of SUMO's signalling, s (:mod:`vcsumo.signalling.fixed_times`)."""
+    fixed_time_s: float | None = None
+    """ETCS-style fixed times (route setting + MA transmission + reaction) of the movement
+    authorities of the trains SUMO drives, s (None: the assumption set's)."""
+    rules: Regime | None = field(default=None, init=False, repr=False)
+    """The registered regime named by ``regime`` (set on construction)."""
+    merge_orders: dict[str, list[str]] = field(default_factory=dict)
+    """Junction node -> train ids in the order they must pass it (default: first come, first served)."""
+    supervise: bool = True
+    """Braking-curve supervision of the trains SUMO drives (off only to show what SUMO alone does)."""
     full_outputs: bool = True
     """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
     trace_speeds: bool = False
@@ -128,8 +134,13 @@ class Scenario:
     def __post_init__(self) -> None:
         if self.regime not in REGIMES:
             raise VcsumoError(f"unknown regime '{self.regime}' (choose from {', '.join(REGIMES)})")
+        self.rules = REGIMES[self.regime]
         if not self.trains:
             raise VcsumoError("no trains to simulate")
+        if self.assumptions is None:
+            self.assumptions = load_assumptions()
+        if self.fixed_time_s is not None:
+            self.assumptions = self.assumptions.model_copy(update={"fixed_time_s": self.fixed_time_s})
 
 
 @dataclass
@@ -151,12 +162,10 @@ class _Track:
     sync_odo: float = math.nan
     tf: float = 1.0
     min_gap: float = math.inf
-    armed: bool = False
-    threshold: float = math.nan
-    violations: int = 0
-    violation_time: float = 0.0
     in_emergency: bool = False
     emergencies: int = 0
+    released_s: float = math.nan
+    """When the driver last handed the train back to SUMO (nan: never)."""
     controlled: bool = False
     mp_s: dict[str, float] = field(default_factory=dict)
     departed_at: float = math.nan
@@ -182,7 +191,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         end = max(t.depart_s for t in scn.trains) + 4.0 * longest / 10.0 + dwell + 3600.0
     args = sumo_args(
         netdir / "line.net.xml", out / "routes.rou.xml", [netdir / "stations.add.xml", *scn.additional_files], out, scn.step_length_s, end,
-        moving_block=scn.regime in ("mb", "vc"), seed=scn.seed, fcd_period=scn.record_period_s, full_outputs=scn.full_outputs,
+        moving_block=scn.rules.moving_block, seed=scn.seed, fcd_period=scn.record_period_s, full_outputs=scn.full_outputs,
     ) + ["--begin", str(begin)]
     write_sumocfg(out / "scenario.sumocfg", args, out)
 
@@ -196,14 +205,15 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     violation_rows: list[tuple] = []
     next_record = begin
     dt = scn.step_length_s
-    authority = None
-    if scn.fixed_time_s > 0:
-        from vcsumo.signalling.fixed_times import DelayedAuthority
-
-        authority = DelayedAuthority(
-            scn.fixed_time_s, scn.regime, dt, {t.id: t.stock.service_brake_decel_mps2 for t in scn.trains},
-            {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.regime == "fbs" else None,
-        )
+    model = SeparationModel(scn.assumptions)
+    health = HealthMonitor(model, scn.trains)
+    supervisor = locking = None
+    if scn.supervise:
+        signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
+        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders)
+        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
+    authority_caps = 0
+    touching_before: set[tuple[str, str]] = set()
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}
     label = f"{scn.line.path} ({scn.regime}, network {scn.network.net_file})"
@@ -223,11 +233,13 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if s_mp > tr.plan.start_s_m:
                         tr.mp_s[mp.label] = s_mp
                 state[vid] = tr
-            for vid in sim.arrived():
+            arrived_now = sim.arrived()
+            for vid in arrived_now:
                 if vid in state:
                     state[vid].arrived_at = t
             active = [v for v in sim.train_ids() if v in state]
             snap_trains: dict[str, TrainState] = {}
+            caps: dict[str, float] = {}
             obs = {vid: sim.observe(vid) for vid in active}
             others = [(vid, o.edge, o.lane_pos_m, plans[vid].stock.length_m) for vid, o in obs.items()]
             for vid in active:
@@ -257,26 +269,39 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if lead is None and len(others) > 1:
                     lead = sim.route_leader(vid, others, scn.lookahead_m)
                 gap = lead[1] if lead else math.inf
+                if lead is not None and locking is not None and lead[0] in state:
+                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
+                    if g is not None:
+                        gap = g
                 tr.min_gap = min(tr.min_gap, gap)
-                counts = tr.controlled or ob.speed_mps > scn.on_sight_speed_mps
-                threshold = scn.driver.safe_gap_m(vid) if (tr.controlled and scn.driver is not None) else scn.min_safe_gap_m
-                if threshold != tr.threshold:
-                    tr.threshold, tr.armed = threshold, False
-                if gap >= threshold - GAP_TOLERANCE_M:
-                    tr.armed = True
-                elif counts:
-                    tr.violation_time += dt
-                    if tr.armed:  # a violation: the gap fell below the safe gap from above
-                        tr.violations += 1
-                        sec, km_v = prof.km_at(tr.s)
-                        violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), ob.speed_mps, gap, threshold, tr.controlled))
-                    tr.armed = False
+                controlled = tr.controlled and scn.driver is not None
+                if scn.driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
+                    # before the driver's first decision a follower behind its own predecessor counts as coupled
+                    controlled = scn.driver.predecessor_of(vid) == lead[0]
+                perm = None
+                if supervisor is not None:
+                    supervisor.observe(vid, t, ob.odometer_m)
+                    if not controlled:
+                        perm = supervisor.permitted(vid, t, tr.s, ob.speed_mps, gap, lead[0] if lead else None)
+                if lead is not None and lead[0] in obs and controlled:
+                    required = health.relative_gap(vid, tr.s, ob.speed_mps, lead[0], gap, obs[lead[0]].speed_mps)
+                else:
+                    required = health.absolute_gap(vid, tr.s, ob.speed_mps)
+                if health.update(vid, dt, tr.s, ob.speed_mps, ob.accel_mps2, gap, required, perm.authority_m if perm else math.inf, not controlled):
+                    sec, km_v = prof.km_at(tr.s)  # the gap just fell below the safe separation
+                    violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), ob.speed_mps, gap, required, controlled))
+                if perm is not None and perm.speed_mps < ob.speed_mps + 2.0:
+                    caps[vid] = perm.speed_mps
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))
                     tr_s.append(tr.s)
                     tr_v.append(ob.speed_mps)
                 section, km = prof.km_at(tr.s)
                 snap_trains[vid] = TrainState(vid, t, tr.s, section, km, ob.speed_mps, ob.accel_mps2, ob.edge, lead[0] if lead else None, gap)
+            if locking is not None:  # approach locking at merges (used by the supervision from the next step)
+                locking.arrived(arrived_now)
+                for sig, train, foe in locking.update({vid: (ts.s_m, ts.speed_mps) for vid, ts in snap_trains.items()}):
+                    sim.add_constraint(sig, train, sig, foe)
             emergency_now = set(sim.emergency_stops())
             for vid in active:
                 if vid in state:
@@ -284,8 +309,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if vid in emergency_now and not tr.in_emergency:
                         tr.emergencies += 1
                     tr.in_emergency = vid in emergency_now
-            for collider, victim in sim.collisions():
+            touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
+            for collider, victim in touching - touching_before:  # one collision per episode
                 collisions.append((t, collider, victim))
+                health.collision(t, collider, victim, obs[collider].speed_mps if collider in obs else 0.0, obs[victim].speed_mps if victim in obs else 0.0)
+            touching_before = touching
             for vid in sim.teleports():
                 teleports.append((t, vid))
             if t + 1e-9 >= next_record:
@@ -293,17 +321,15 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     traj_rows.append((ts.time_s, ts.id, ts.section, round(ts.km, 6), round(ts.s_m, 3), ts.speed_mps, ts.accel_mps2,
                                       None if math.isinf(ts.gap_m) else round(ts.gap_m, 3), ts.leader, ts.edge))
                 next_record += scn.record_period_s
-            if authority is not None:
-                caps = authority.caps(t, snap_trains, skip={v for v, tr in state.items() if tr.controlled})
-                for vid, ts in snap_trains.items():
-                    cap = caps.get(vid)
-                    if cap is not None and cap < ts.speed_mps + 2.0:
-                        sim.set_speed(vid, cap)
-                        capped.add(vid)
-                        authority.caps_applied += 1
-                    elif vid in capped:
-                        sim.release(vid)
-                        capped.discard(vid)
+            for vid, ts in snap_trains.items():
+                cap = caps.get(vid)
+                if cap is not None and not state[vid].controlled:
+                    sim.set_speed(vid, cap)
+                    capped.add(vid)
+                    authority_caps += 1
+                elif vid in capped:
+                    sim.release(vid)
+                    capped.discard(vid)
             if scn.driver is not None:
                 t0 = time.perf_counter()
                 commands = scn.driver.make_step(Snapshot(t, dt, snap_trains))
@@ -321,19 +347,28 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if tr.controlled and vid not in commands and vid in snap_trains:
                         sim.release(vid)
                         tr.controlled = False
+                        tr.released_s = t
+                        if supervisor is not None:  # supervised from this very step: no step of SUMO alone
+                            ts = snap_trains[vid]
+                            perm = supervisor.permitted(vid, t, ts.s_m, ts.speed_mps, ts.gap_m, ts.leader)
+                            if perm.speed_mps < ts.speed_mps + 2.0:
+                                sim.set_speed(vid, perm.speed_mps)
+                                capped.add(vid)
+                    elif not tr.controlled and vid not in commands and vid in snap_trains and math.isnan(tr.released_s) and tr.departed_at < t:
+                        tr.released_s = t  # the driver decided not to drive it
             if progress is not None:
                 progress(t - begin, end - begin)
             if sim.min_expected() == 0 or t >= end - 1e-9:
                 break
         sim_end = t
     t_io = time.perf_counter()
-    pd.DataFrame(violation_rows, columns=["time_s", "train", "leader", "section", "km", "speed_mps", "gap_m", "safe_gap_m", "driven_by_vcsumo"]).to_csv(out / "violations.csv", index=False)
-    pd.DataFrame(collisions, columns=["time_s", "collider", "victim"]).to_csv(out / "collisions.csv", index=False)
+    pd.DataFrame(violation_rows, columns=["time_s", "train", "leader", "section", "km", "speed_mps", "gap_m", "safe_separation_m", "driven_by_vcsumo"]).to_csv(out / "violations.csv", index=False)
+    pd.DataFrame(health.collision_rows, columns=["time_s", "collider", "victim", "impact_speed_kmh"]).to_csv(out / "collisions.csv", index=False)
     extra = {
-        "fixed_time_s": scn.fixed_time_s, "authority_caps": authority.caps_applied if authority is not None else 0,
+        "fixed_time_s": scn.assumptions.fixed_time_s, "authority_caps": authority_caps, "assumptions": scn.assumptions.name,
         "sumo_step_time_s": round(timing["sumo_s"], 3), "controller_time_s": round(timing["controller_s"], 3),
     }
-    result = _collect(scn, out, state, traj_rows, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
+    result = _collect(scn, out, state, health, traj_rows, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
     result.speed_traces = traces
     return result
 
@@ -347,8 +382,8 @@ def _parse_xml_rows(path: Path, tag: str) -> list[dict]:
         raise SumoError(f"{path}: SUMO output is not valid XML ({exc})") from None
 
 
-def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass_rows, collisions, teleports, sim_end: float, wall: float,
-             extra: dict | None = None) -> SimulationResult:
+def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthMonitor, traj_rows, pass_rows, collisions, teleports, sim_end: float,
+             wall: float, extra: dict | None = None) -> SimulationResult:
     t_io = time.perf_counter()
     traj = pd.DataFrame(traj_rows, columns=["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"])
     passages = pd.DataFrame(pass_rows, columns=["measuring_point", "train", "time_s", "speed_mps"])
@@ -372,6 +407,9 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass
         })
     stops = pd.DataFrame(stop_rows, columns=["train", "station", "platform", "arrival_s", "departure_s", "dwell_s", "scheduled_arrival_s", "scheduled_departure_s", "arrival_delay_s", "departure_delay_s"])
     trip = {r["id"]: r for r in _parse_xml_rows(out / "tripinfo.xml", "tripinfo")}
+    scheduled = {t.id: [x.platform for x in t.stops] + ([t.final_stop.platform] if t.final_stop is not None else []) for t in scn.trains}
+    served = stops.groupby(["train", "platform"]).size().to_dict() if len(stops) else {}
+    warnings = read_sumo_log(out / "sumo_errors.log")
     rows = []
     for t in scn.trains:
         tr = state.get(t.id)
@@ -392,21 +430,41 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], traj_rows, pass
             "route_length_m": float(ti["routeLength"]) if ti else math.nan,
             "time_loss_s": float(ti["timeLoss"]) if ti else math.nan,
             "min_gap_m": (tr.min_gap if tr and not math.isinf(tr.min_gap) else None),
-            "gap_violations": tr.violations if tr else 0, "gap_violation_time_s": tr.violation_time if tr else 0.0,
+            "stops_scheduled": len(scheduled[t.id]), "stops_served": sum(1 for pl in scheduled[t.id] if served.get((t.id, pl), 0)),
+            **health.train_row(t.id),
+            "gap_violations": health.trains[t.id].separation_violations,
             "emergency_brakes": tr.emergencies if tr else 0,
-            "collisions": sum(1 for c in collisions if t.id in (c[1], c[2])),
             "arrived": bool(ti) and not math.isnan(arrival),
         })
     trains_df = pd.DataFrame(rows)
+    trains_df["stops_skipped"] = trains_df["stops_scheduled"] - trains_df["stops_served"]
     gaps = [tr.min_gap for tr in state.values() if not math.isinf(tr.min_gap)]
+    margins = trains_df["min_margin_m"].dropna()
     summary = {
         "line": scn.line.name, "regime": scn.regime, "step_length_s": scn.step_length_s, "seed": scn.seed,
         "trains": len(scn.trains), "trains_arrived": int(trains_df["arrived"].sum()),
-        "min_gap_m": min(gaps) if gaps else None, "min_safe_gap_m": scn.min_safe_gap_m,
-        "gap_violations": int(trains_df["gap_violations"].sum()), "collisions": len(collisions),
+        "min_gap_m": min(gaps) if gaps else None,
+        "min_margin_m": float(margins.min()) if len(margins) else None,
+        "gap_violations": int(trains_df["gap_violations"].sum()),
+        "below_separation_time_s": round(float(trains_df["below_separation_time_s"].sum()), 2),
+        "collisions": len(collisions), "max_impact_kmh": float(trains_df["max_impact_kmh"].max()) if len(trains_df) else 0.0,
+        "stops_scheduled": int(trains_df["stops_scheduled"].sum()), "stops_served": int(trains_df["stops_served"].sum()),
+        "stops_skipped": int(trains_df["stops_skipped"].sum()),
+        "overspeed_events": int(trains_df["overspeed_events"].sum()), "overspeed_max_kmh": float(trains_df["overspeed_max_kmh"].max()) if len(trains_df) else 0.0,
+        "beyond_service_brakings": int(trains_df["beyond_service_brakings"].sum()),
+        "max_decel_mps2": float(trains_df["max_decel_mps2"].max()) if len(trains_df) else 0.0,
+        "authority_overruns": int(trains_df["authority_overruns"].sum()),
+        "sumo_emergency_stops": warnings.emergency_stops, "sumo_stop_warnings": warnings.stop_warnings,
+        "sumo_emergency_brakings": warnings.emergency_braking, "sumo_collision_warnings": warnings.collisions,
         "emergency_brakes": int(trains_df["emergency_brakes"].sum()), "teleports": len(teleports),
         "simulated_until_s": sim_end, **(extra or {}),
     }
+    summary["healthy"] = bool(
+        summary["trains_arrived"] == summary["trains"] and summary["stops_skipped"] == 0 and summary["overspeed_events"] == 0
+        and summary["beyond_service_brakings"] == 0 and summary["authority_overruns"] == 0 and summary["sumo_emergency_stops"] == 0
+        and summary["collisions"] == 0 and summary["gap_violations"] == 0 and summary["teleports"] == 0 and summary["sumo_stop_warnings"] == 0
+        and summary["sumo_emergency_brakings"] == 0
+    )
     if scn.full_outputs:
         traj.to_csv(out / "trajectories.csv", index=False)
     passages.to_csv(out / "passages.csv", index=False)

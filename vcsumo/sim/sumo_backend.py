@@ -218,6 +218,11 @@ class SumoBackend:
         self._ls.vehicle.setSpeedMode(vid, SPEED_MODE_DEFAULT)
         self._ls.vehicle.setSpeed(vid, -1)
 
+    @_traci
+    def add_constraint(self, signal: str, train: str, foe_signal: str, foe: str) -> None:
+        """Rail-signal constraint: ``train`` may pass ``signal`` only after ``foe`` passed ``foe_signal``."""
+        self._ls.trafficlight.addConstraint(signal, train, foe_signal, foe, 0, 1)
+
     # ----------------------------------------------------------------------------- safety events
     @_traci
     def collisions(self) -> list[tuple[str, str]]:
@@ -226,7 +231,8 @@ class SumoBackend:
 
     @_traci
     def emergency_stops(self) -> list[str]:
-        """Trains that braked harder than their service deceleration in this step."""
+        """Trains SUMO stopped within one step this step ('performs emergency stop': at the end of a
+        lane, e.g. a red signal passed at speed or the end of the track)."""
         return list(self._ls.simulation.getEmergencyStoppingVehiclesIDList())
 
     @_traci

@@ -104,7 +104,7 @@ def write_sumocfg(path: Path, args: list[str], out: Path) -> None:
         ET.SubElement(root, key, value=",".join(parts))
     ET.SubElement(root, "output-prefix", value=REPLAY_PREFIX)
     ET.indent(root)
-    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (tunnel vType switching and vcsumo drivers are not replayed; '
+    path.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<!-- vcsumo scenario: open with  sumo-gui -c scenario.sumocfg  (SUMO alone: the braking-curve supervision, tunnel vType switching and VC drivers are not replayed; '
                     f'the replay writes {REPLAY_PREFIX}* files, the recorded outputs stay as they are) -->\n' + ET.tostring(root, encoding="unicode") + "\n")
 
 

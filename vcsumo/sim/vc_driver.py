@@ -62,6 +62,8 @@ from vcsumo.control.faults import FAULT_KINDS, faults_frame
 from vcsumo.control.guard import GuardConfig, load_guard
 from vcsumo.control.params import resolve_params
 from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError
@@ -184,6 +186,10 @@ class _Follower:
     next_stop: int = 0
     stop_handovers: int = 0
     at_stop: bool = False
+    linked: bool = False
+    """The link to the predecessor is up (set at the first step both run)."""
+    braking: RouteBraking | None = None
+    """The follower's guaranteed braking on its route under the absolute rule (stop hand-over)."""
 
     @property
     def stage(self):
@@ -200,8 +206,10 @@ class VCDriver:
 
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
                  cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
-                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0):
+                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None):
         self.name, self.params_spec = parse_controller(controller)
+        self.assumptions = assumptions or load_assumptions()
+        self.model = SeparationModel(self.assumptions)
         self.step_s = step_s
         self.channel = Channel((channel or ChannelConfig(model="ideal", period_s=step_s)).model_copy(update={"seed": seed}))
         self.plan_horizon_s = plan_horizon_s
@@ -226,7 +234,7 @@ class VCDriver:
                 ego.shares_platforms = True
                 stack = build_follower_stack(controller, StackContext(
                     ego=ego.stock, predecessor=pred.stock, step_s=step_s, profile=ego.profile, supervisor_params=cbf_config, guard=self.guard,
-                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s))
+                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions))
                 frames = {}
                 for other in members:
                     if other.id != ego.id:
@@ -241,9 +249,11 @@ class VCDriver:
                 elif ego.end_pos_m is not None and ego.stop_at_end:
                     stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
                     plats.append(0.0)
-                self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params())
+                self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params(),
+                                                   braking=RouteBraking(self.model, ego.stock, ego.profile))
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
-        arrange_convoy_departures(convoys, {fid: f.d_min + 2.0 for fid, f in self.followers.items()})
+        margin = self.model.margin_m  # standing behind a train: margin and position errors
+        arrange_convoy_departures(convoys, {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}, self.model)
 
     # -----------------------------------------------------------------------------------
     def _send(self, snap: Snapshot) -> None:
@@ -309,6 +319,15 @@ class VCDriver:
             if st is None:
                 continue
             fr = f.frames.get(f.pred.id)
+            if not f.linked and pst is not None and fr is not None:
+                # the link is up when a convoy starts (its members formed it standing, or were released formed):
+                # the follower holds its predecessor's state from the first step both run
+                f.linked = True
+                if f.pred.id not in received:
+                    received = {**received, f.pred.id: Message(sender=f.pred.id, sent_time_s=t, length_m=f.pred.stock.length_m,
+                                                               state=TrainStateMsg(t, pst.s_m + fr.offset_m, pst.speed_mps, pst.accel_mps2, 0.0),
+                                                               received_time_s=t)}
+                    self.channel.remember(fid, received[f.pred.id])
             coupled = (
                 pst is not None and fr is not None and pst.s_m - f.pred.stock.length_m <= fr.shared_end_a_m and st.s_m <= fr.shared_end_b_m
                 and (pst.s_m + fr.offset_m) - f.pred.stock.length_m > st.s_m  # the predecessor is ahead
@@ -319,21 +338,22 @@ class VCDriver:
                 f.at_stop = False
             stop_target = None  # where SUMO will stop this follower, when its stop is near
             if coupled and f.next_stop < len(f.stops_m):
-                b = f.plan.stock.service_brake_decel_mps2
                 v = st.speed_mps
                 s_pred = pst.s_m + fr.offset_m
                 s_pred_rear = s_pred - f.pred.stock.length_m
                 # SUMO stops the follower at its platform end, or behind a predecessor standing in the platform
+                # (margin and position errors behind its rear, as behind any train)
                 s_stop = f.stops_m[f.next_stop]
                 in_platform = s_stop - f.platforms_m[f.next_stop] - 1.0 <= s_pred <= s_stop + 1.0
-                target = min(s_stop, s_pred_rear - 5.0) if in_platform else s_stop
+                target = min(s_stop, s_pred_rear - self.model.margin_m) if in_platform else s_stop
                 to_stop = target - st.s_m
-                sumo_brake = v * v / (2 * b) + 0.5 * self.step_s * v  # SUMO's own braking distance
-                gap = s_pred_rear - st.s_m
-                mb_kept = gap >= sumo_brake + 50.0
-                if to_stop <= sumo_brake + 150.0:
+                stopping = f.braking.stopping_distance(st.s_m, v, 1.5 * self.step_s)
+                if to_stop <= stopping + 150.0:
                     stop_target = target
-                if f.at_stop or (stop_target is not None and (v < 30.0 / 3.6 or mb_kept) and to_stop >= sumo_brake + 1.0):
+                # hand over to SUMO (and its supervision) once the absolute rule holds behind the predecessor
+                # and the stop curve can still stop the train there: the run-health monitor then checks it so
+                absolute_ok = s_pred_rear - st.s_m >= self.model.margin_m + f.braking.stopping_distance(st.s_m, v, self.model.dead_time_s)
+                if f.at_stop or (stop_target is not None and absolute_ok and to_stop >= stopping - 1.0):
                     if not f.at_stop:
                         f.stop_handovers += 1
                     f.at_stop = True
@@ -399,6 +419,10 @@ class VCDriver:
         return commands
 
     # -----------------------------------------------------------------------------------
+    def predecessor_of(self, train_id: str) -> str | None:
+        f = self.followers.get(train_id)
+        return f.pred.id if f is not None else None
+
     def safe_gap_m(self, train_id: str) -> float:
         f = self.followers.get(train_id)
         return f.d_min if f is not None else 50.0
@@ -436,28 +460,41 @@ class VCDriver:
         (out / "vc_summary.json").write_text(json.dumps({"summary": self.summary(), "followers": per}, indent=2, default=str))
 
 
-def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], window_s: float = 300.0) -> None:
+def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
+                              window_s: float = 300.0) -> None:
     """Members leaving the leader's platform within ``window_s`` depart with it, standing behind it.
 
     The follower's front is placed ``standstill_gap_m`` behind the rear of the train ahead on the
-    same departure edge; if the convoy does not fit on that edge, the follower keeps its own time.
+    same departure edge.  If the convoy does not stand in that edge, the follower departs from its
+    own position as soon as the train ahead has cleared it by the standstill gap (its unhindered
+    start, with ``model``'s guaranteed braking; SUMO would otherwise insert it a few metres behind).
     """
     for members in convoys:
         for k in range(1, len(members)):
             ego, ahead = members[k], members[k - 1]
             if ego.edges[0] != ahead.edges[0] or abs(ego.depart_s - ahead.depart_s) > window_s or ahead.depart_speed_mps > 0:
                 continue
-            pos = ahead.depart_pos_m - ahead.stock.length_m - standstill_gap_m.get(ego.id, 10.0)
-            if pos < ego.stock.length_m:
+            gap = standstill_gap_m.get(ego.id, 10.0)
+            pos = ahead.depart_pos_m - ahead.stock.length_m - gap
+            if pos >= ego.stock.length_m:
+                ego.depart_s = ahead.depart_s
+                ego.depart_pos_m = pos
+                ego.start_s_m = pos
                 continue
-            ego.depart_s = ahead.depart_s
-            ego.depart_pos_m = pos
-            ego.start_s_m = pos
+            if model is None or abs(ego.depart_pos_m - ahead.depart_pos_m) > 1.0:
+                continue
+            from vcsumo.running_time import time_at
+
+            run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=ahead.start_s_m + ahead.stock.length_m + gap + 1.0,
+                                 stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
+            clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
+            ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
 
 
 def make_vc_driver(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain], controller: str, step_s: float, seed: int = 42,
-                   channel: str | Path | None = None, cbf_config: str | None = None, guard: str | Path | None = None) -> VCDriver:
+                   channel: str | Path | None = None, cbf_config: str | None = None, guard: str | Path | None = None,
+                   assumptions: AssumptionSet | None = None) -> VCDriver:
     """Build the vc driver for a timetable's convoys (errors name the timetable or the controller)."""
     parse_controller(controller)
     convoys = convoys_from_timetable(tt, tt_path, trains)
-    return VCDriver(convoys, controller, step_s, seed, load_channel(channel), cbf_config, guard=load_guard(guard))
+    return VCDriver(convoys, controller, step_s, seed, load_channel(channel), cbf_config, guard=load_guard(guard), assumptions=assumptions)

@@ -192,8 +192,7 @@ def _run(spec: RunSpec) -> dict:
               "block_length_m": spec.block_length_m, "delays": spec.delays, "delay_config_sha256": spec.delay_config_sha256,
               "run_key": spec.key, "batch_command": spec.command}
     with ResultsFolder(Path(spec.run_dir), inputs={**line.input_files(), "timetable": tt_path}, seed=spec.seed, params=params, overwrite=True) as rf:
-        scn = Scenario(line, net, trains, spec.regime, step_length_s=spec.step_length_s, seed=spec.seed, driver=driver,
-                       min_safe_gap_m=driver.min_safe_gap_m if driver is not None else 50.0, full_outputs=False)
+        scn = Scenario(line, net, trains, spec.regime, step_length_s=spec.step_length_s, seed=spec.seed, driver=driver, full_outputs=False)
         res = simulate(scn, rf.path)
         if driver is not None:
             driver.write_report(rf.path)

@@ -42,15 +42,11 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from vcsumo.signalling.blocking_time import (
-    SUMO_MB_MARGIN_M,
-    BrakingRule,
-    fbs_blocking_times,
-    mb_headway_profile,
-    sumo_reaction_time,
-)
 from vcsumo.engine.campaign import Outcome, Runner, Task, run_campaign
 from vcsumo.engine.store import ResultStore, Table, atomic_csv
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
@@ -67,7 +63,9 @@ from vcsumo.timetable import PlannedStop, PlannedTrain
 PATTERNS = ("non-stop", "all-stops")
 CAPACITY_COLUMNS = [
     "line", "direction", "regime", "controller", "convoy_size", "stopping_pattern", "critical_section_km", "headway_sim_s",
-    "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions",
+    "headway_analytic_s", "intra_convoy_gap_m", "coupled_gap_model_m", "release_speed_kmh", "capacity_trains_per_h", "gain_vs_fbs",
+    "healthy", "min_gap_m", "min_margin_m", "gap_violations", "below_separation_time_s", "collisions", "max_impact_kmh", "stops_skipped",
+    "overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops", "unhealthy_probes", "assumptions",
     "train", "release_interval_s", "deviation_pct", "block_length_m", "fixed_time_s", "emergency_brakes", "guard_interventions", "simulations",
     "wall_time_s", "sumo_time_s", "controller_time_s", "io_time_s", "error",
 ]
@@ -128,7 +126,7 @@ def _intermediate_stops(line: Line, net: BuiltNetwork, direction: str, full: Rou
     return sorted(out, key=lambda x: x[2])
 
 
-def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float) -> RouteSetup:
+def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float, model: SeparationModel | None = None) -> RouteSetup:
     topo = net.topology
     track = topo.track_for("main", direction)
     full = RouteProfile.from_edges(topo, track.edges)
@@ -138,7 +136,8 @@ def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: s
     if s_rel <= start + 1.0:
         s_rel, v0 = start, 0.0
     else:
-        run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False)
+        curve = RouteBraking(model, stock, full).curve(1.5 * step_s) if model is not None else None
+        run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False, curve=curve)
         v0 = speed_at(run0, s_rel)
     return RouteSetup(direction, list(track.edges), full, s_rel, v0, _intermediate_stops(line, net, direction, full, s_rel), rel)
 
@@ -172,58 +171,24 @@ def unit_trains(topo, setup: RouteSetup, stock: RollingStock, case: Case, n_unit
     return units
 
 
-def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float) -> pd.DataFrame:
+def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float, model: SeparationModel) -> pd.DataFrame:
+    """The unit leader's run alone, as the supervised SUMO driver runs it (guaranteed braking)."""
     stops = setup.stops_full if case.pattern == "all-stops" else []
-    return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops], stop_at_end=False)
+    return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops],
+                          stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
 
 
-def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, regime: str, unit_length_m, step_s: float, s_check: float,
-                     rear_lag_at=None, fixed_time_s: float = 0.0) -> tuple[float, float, pd.DataFrame | None]:
-    """(headway s, critical position m, FBS blocks) of blocking-time theory over [release, s_check].
-
-    ``rear_lag_at``: for a VC convoy, the time its last train passes a position after its leader
-    (:func:`vcsumo.signalling.blocking_time.mb_headway_profile`).  ``fixed_time_s`` (route setting, MA
-    transmission, reaction; :mod:`vcsumo.signalling.fixed_times`) lengthens every block occupation and so
-    every headway by the same amount.
-    """
-    rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
-    if regime == "fbs":
-        blocks = fbs_blocking_times(run, setup.full.signal_positions(net.topology), setup.full.length_m, float(unit_length_m), rule)
-        sel = blocks[blocks.approach_m <= s_check]
-        i = sel.blocking_time_s.idxmax()
-        return float(sel.loc[i, "blocking_time_s"]) + fixed_time_s, float(sel.loc[i, "block_start_m"]), blocks
-    prof = mb_headway_profile(run, unit_length_m, rule, SUMO_MB_MARGIN_M, rear_lag_at=rear_lag_at)
-    sel = prof[prof.s_m <= s_check]
-    i = sel.headway_s.idxmax()
-    return float(sel.loc[i, "headway_s"]) + fixed_time_s, float(sel.loc[i, "s_m"]), None
+def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,
+                     s_check: float):
+    """The regime's minimum headway between two units from the separation model alone
+    (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway`)."""
+    inp = HeadwayInputs(model, stock, setup.full, run, setup.full.signal_positions(net.topology), step_s, s_check)
+    return REGIMES[case.regime].analytic_headway(inp, case.convoy_size)
 
 
-def rear_lag(traces: dict, lead: PlannedTrain, last: PlannedTrain, full_length_m: float, dt: float):
-    """The time a convoy's last train passes a position after its leader, from one run's traces
-    (positions in the full-track frame; linear between samples, held at the ends)."""
-    def passage(t: PlannedTrain):
-        s, _ = traces[t.id]
-        s = np.maximum.accumulate(np.asarray(s) + (full_length_m - t.profile.length_m))
-        times = t.depart_s + dt * np.arange(len(s))
-        keep = np.concatenate([[True], np.diff(s) > 1e-6])  # first passage of every position
-        return s[keep], times[keep]
-
-    s_l, t_l = passage(lead)
-    s_r, t_r = passage(last)
-    lo, hi = max(s_l[0], s_r[0]), min(s_l[-1], s_r[-1])
-    grid = np.linspace(lo, hi, 2000)
-    lag = np.interp(grid, s_r, t_r) - np.interp(grid, s_l, t_l)
-    return lambda z: np.interp(np.asarray(z, dtype=float), grid, lag)
-
-
-def _initial_gap(stock: RollingStock, v0: float, step_s: float) -> float:
-    """Starting gap inside a convoy: the relative-braking gap at the release speed (guard formula) + 20 m."""
-    from vcsumo.control.guard import guaranteed_decel, strongest_decel
-
-    p = stock.params()
-    b_f = guaranteed_decel(p, v0, stock.emergency_brake_decel_mps2, -0.02)
-    a_l = strongest_decel(p, v0, stock.emergency_brake_decel_mps2, 0.02, 1.5)
-    return max(0.0, 1.5 * v0 * step_s + v0 * v0 / (2 * b_f) - v0 * v0 / (2 * a_l)) + 60.0
+def _initial_gap(model: SeparationModel, stock: RollingStock, v0: float) -> float:
+    """Starting gap inside a convoy: the separation model's coupled gap at the release speed + 20 m."""
+    return model.vc_gap(stock, stock, v0) + 20.0
 
 
 @dataclass
@@ -237,23 +202,25 @@ class CaseResult:
 
 
 def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSetup, case: Case, out: Path, step_s: float, vc_step_s: float,
-             resolution_s: float = 0.5, seed: int = 42, fixed_time_s: float = 0.0) -> CaseResult:
-    """Bisection on the release interval for one case."""
+             resolution_s: float = 0.5, seed: int = 42, fixed_time_s: float | None = None, assumptions: AssumptionSet | None = None) -> CaseResult:
+    """Bisection on the release interval for one case, started at the regime's analytic headway."""
     t_wall = time.perf_counter()
     topo = net.topology
+    assumptions = assumptions or load_assumptions()
+    if fixed_time_s is not None:
+        assumptions = assumptions.model_copy(update={"fixed_time_s": fixed_time_s})
+    fixed_time_s = assumptions.fixed_time_s
+    model = SeparationModel(assumptions)
     dt = vc_step_s if case.regime == "vc" else step_s
-    run = leader_run(setup, stock, case, dt)
+    run = leader_run(setup, stock, case, dt, model)
     s_check = setup.full.length_m - 100.0
-    init_gap = _initial_gap(stock, setup.v0, dt) if case.convoy_size > 1 else 0.0
-    # first guess from theory with the initial gap; the bisection decides
-    L_guess = case.convoy_size * stock.length_m + (case.convoy_size - 1) * init_gap
-    guess, crit, _ = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", L_guess, dt, s_check, fixed_time_s=fixed_time_s)
+    init_gap = _initial_gap(model, stock, setup.v0) if case.convoy_size > 1 else 0.0
+    theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check)
+    guess = theory.headway_s
     probes = [0]
+    unhealthy = [0]
     timing = {"sumo_step_time_s": 0.0, "controller_time_s": 0.0, "io_time_s": 0.0}
     mps = [MeasuringPoint("end", "main", setup.full.km_at(s_check)[1])]
-
-    def run_single(h: float) -> Probe:
-        return run_at(h, n_units=1)
 
     def run_at(h: float, n_units: int = 2) -> Probe:
         units = unit_trains(topo, setup, stock, case, n_units, h, init_gap)
@@ -262,12 +229,13 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         if case.regime == "vc":
             from vcsumo.sim.vc_driver import VCDriver, load_channel
 
-            driver = VCDriver(units, case.controller, dt, seed, load_channel(None))
+            driver = VCDriver(units, case.controller, dt, seed, load_channel(None), assumptions=assumptions)
         probes[0] += 1
         sim = simulate(Scenario(line, net, trains, case.regime, step_length_s=dt, measuring_points=mps, record_period_s=3600.0,
-                                full_outputs=False, trace_speeds=True, driver=driver, seed=seed, fixed_time_s=fixed_time_s), out / "probes" / f"h{h:08.3f}")
+                                full_outputs=False, trace_speeds=True, driver=driver, seed=seed, assumptions=assumptions), out / "probes" / f"h{h:08.3f}")
         for k in timing:
             timing[k] += sim.summary.get(k, 0.0)
+        unhealthy[0] += int(not sim.summary["healthy"])
         pr = Probe(h, sim.passages, {t.id: t.depart_s for t in trains}, sim.summary)
         pr.units = units  # type: ignore[attr-defined]
         pr.sim = sim  # type: ignore[attr-defined]
@@ -291,29 +259,19 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
             pr.vc_records = pd.DataFrame(driver.records)  # type: ignore[attr-defined]
         return pr
 
-    if case.convoy_size > 1:
-        # calibration: one convoy alone shows how long it takes to pass each point; blocking-time
-        # theory with that occupation brackets the search
-        cal = run_single(guess)
-        guess, crit, _ = analytic_headway(net, setup, run, stock, "mb", stock.length_m, dt, s_check,
-                                          rear_lag(cal.sim.speed_traces, cal.units[0][0], cal.units[0][-1], setup.full.length_m, dt), fixed_time_s)
     found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=2.0, resolution_s=resolution_s, bracket=SEARCH_BRACKET,
                                  centre=SEARCH_CENTRE)
     h, pr = found["end"]
     if math.isnan(h):
         raise VcsumoError(f"no sustainable headway found for {case} (trains hindered at every interval tried)")
     units = pr.units  # type: ignore[attr-defined]
-    # coupled gap inside convoys: median while running above half the release speed (reported),
-    # and as a function of speed for the analytic convoy length
+    # coupled gap inside convoys at the release speed (±3 %), beside the separation model's gap there
     gap = math.nan
     if case.convoy_size > 1 and hasattr(pr, "vc_records") and len(pr.vc_records):
         rec = pr.vc_records
-        fast = rec[rec.speed_mps > 0.5 * max(setup.v0, 10.0)]
-        gap = float(fast.gap_m.median()) if len(fast) else float(rec.gap_m.median())
-    lag = None
-    if case.convoy_size > 1:
-        lag = rear_lag(pr.sim.speed_traces, units[0][0], units[0][-1], setup.full.length_m, dt)  # type: ignore[attr-defined]
-    h_an, crit, blocks = analytic_headway(net, setup, run, stock, case.regime if case.regime != "vc" else "mb", stock.length_m, dt, s_check, lag, fixed_time_s)
+        cruise = rec[(rec.speed_mps - setup.v0).abs() <= 0.03 * max(setup.v0, 1.0)]
+        gap = float(cruise.gap_m.median()) if len(cruise) else math.nan
+    h_an, crit, blocks = theory.headway_s, theory.critical_m, theory.blocks
     # simulated headway: leaders passing the critical section in the run at the minimum interval
     tr0 = pr.sim.speed_traces  # type: ignore[attr-defined]
     h_sim = h
@@ -334,8 +292,15 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         "line": line.name, "direction": case.direction, "regime": case.regime, "controller": case.controller or "", "convoy_size": case.convoy_size,
         "stopping_pattern": case.pattern, "critical_section_km": round(setup.full.km_at(crit)[1], 3), "headway_sim_s": round(h_sim, 2),
         "headway_analytic_s": round(h_an, 2), "intra_convoy_gap_m": round(gap, 1) if not math.isnan(gap) else math.nan,
+        "coupled_gap_model_m": round(theory.coupled_gap_m, 1) if theory.coupled_gap_m is not None else math.nan,
+        "release_speed_kmh": round(3.6 * setup.v0, 1),
         "capacity_trains_per_h": round(3600.0 * case.convoy_size / h_sim, 2), "gain_vs_fbs": math.nan,
         "min_gap_m": summ["min_gap_m"], "gap_violations": summ["gap_violations"], "collisions": summ["collisions"], "train": stock.name,
+        "assumptions": assumptions.name, "healthy": bool(summ["healthy"]), "min_margin_m": summ["min_margin_m"],
+        "below_separation_time_s": summ["below_separation_time_s"], "max_impact_kmh": summ["max_impact_kmh"],
+        "stops_skipped": summ["stops_skipped"], "overspeed_events": summ["overspeed_events"], "beyond_service_brakings": summ["beyond_service_brakings"],
+        "authority_overruns": summ["authority_overruns"], "sumo_emergency_stops": summ["sumo_emergency_stops"],
+        "unhealthy_probes": unhealthy[0],
         "release_interval_s": round(h, 2), "deviation_pct": round(100.0 * (h_sim - h_an) / h_an, 2),
         "block_length_m": net.topology.block_length_m, "fixed_time_s": fixed_time_s, "emergency_brakes": summ["emergency_brakes"],
         "guard_interventions": getattr(pr, "vc", {}).get("guard_interventions", 0) if hasattr(pr, "vc") else 0,
@@ -392,12 +357,13 @@ def _case_task(args: tuple) -> dict:
 
     The case's folder ``runs/<case>/`` is written whole or not at all; an example case also
     leaves its result there (:data:`EXAMPLE_FILE`) for the time-distance plot."""
-    line, net, stock, setup, case, out, step_s, vc_step_s, seed, fixed_time_s, keep_example, key = args
+    line, net, stock, setup, case, out, step_s, vc_step_s, seed, assumptions, keep_example, key = args
     params = {"case": {"direction": case.direction, "regime": case.regime, "controller": case.controller, "convoy_size": case.convoy_size,
-                       "pattern": case.pattern}, "case_key": key, "step_length_s": step_s, "vc_step_length_s": vc_step_s, "fixed_time_s": fixed_time_s}
+                       "pattern": case.pattern}, "case_key": key, "step_length_s": step_s, "vc_step_length_s": vc_step_s,
+              "assumptions": assumptions.record()}
     with ResultsFolder(_case_dir(out, case), inputs={"line": line.path}, seed=seed, params=params, overwrite=True) as rf:
         res = run_case(line, net, stock, setup, case, rf.path, step_s, vc_step_s, seed=seed,
-                       resolution_s=1.0 if case.regime == "vc" else 0.5, fixed_time_s=fixed_time_s)
+                       resolution_s=1.0 if case.regime == "vc" else 0.5, assumptions=assumptions)
         if keep_example:
             time_distance_table({case.regime: res}, {case.direction: setup}).to_csv(rf.path / EXAMPLE_FILE, index=False)
     return dict(res.row, case_key=key)
@@ -432,18 +398,19 @@ def _failed_row(line: Line, stock: RollingStock, net: BuiltNetwork, case: Case, 
     return row
 
 
-def study_params(line: Line, net: BuiltNetwork, stock: RollingStock, step_s: float, vc_step_s: float, seed: int, fixed_time_s: float) -> dict:
+def study_params(line: Line, net: BuiltNetwork, stock: RollingStock, step_s: float, vc_step_s: float, seed: int, assumptions: AssumptionSet) -> dict:
     """The parameters every case of a study depends on: a study folder holds cases of one set only."""
     return {"line": line.name, "line_sha256": file_digest(line.path), "block_length_m": net.topology.block_length_m, "train": stock.name,
             "train_sha256": hashlib.sha256(json.dumps(stock.model_dump(mode="json"), sort_keys=True).encode()).hexdigest(),
-            "step_length_s": step_s, "vc_step_length_s": vc_step_s, "seed": seed, "fixed_time_s": fixed_time_s}
+            "step_length_s": step_s, "vc_step_length_s": vc_step_s, "seed": seed, "fixed_time_s": assumptions.fixed_time_s,
+            "assumptions": assumptions.record()}
 
 
 def run_capacity_study(
     line: Line, net: BuiltNetwork, stock: RollingStock, out: Path, controllers: list[str], convoy_sizes: list[int],
     directions: tuple[str, ...] = ("up", "down"), patterns: tuple[str, ...] | None = None, step_s: float = 0.5, vc_step_s: float = 0.2,
-    seed: int = 42, progress: Callable[[int, int, str], None] | None = None, fixed_time_s: float = 0.0, workers: int | None = 1,
-    scheduler: str | None = None,
+    seed: int = 42, progress: Callable[[int, int, str], None] | None = None, fixed_time_s: float | None = None, workers: int | None = 1,
+    scheduler: str | None = None, assumptions: AssumptionSet | None = None,
 ) -> pd.DataFrame:
     """Every case; writes ``capacity.csv``, ``capacity.png``, ``time_distance.png`` and ``meta.json`` into ``out``.
 
@@ -464,11 +431,16 @@ def run_capacity_study(
     for n in convoy_sizes:
         if not 1 <= n <= 8:
             raise InputError(None, "--convoy-sizes", f"convoy size {n} is outside 1-8")
-    if fixed_time_s < 0:
+    if fixed_time_s is not None and fixed_time_s < 0:
         raise InputError(None, "--fixed-time-s", f"fixed time {fixed_time_s} s is negative")
+    assumptions = assumptions or load_assumptions()
+    if fixed_time_s is not None:
+        assumptions = assumptions.model_copy(update={"fixed_time_s": fixed_time_s})
+    fixed_time_s = assumptions.fixed_time_s
+    model = SeparationModel(assumptions)
     out = Path(out)
     runner = Runner(workers, scheduler, log_path=out / "workers.log", partial_roots=[out / "runs"])
-    setups = {d: route_setup(line, net, stock, d, step_s) for d in directions}
+    setups = {d: route_setup(line, net, stock, d, step_s, model) for d in directions}
     if patterns is None:
         patterns = tuple(p for p in PATTERNS if p == "non-stop" or any(setups[d].stops_full for d in directions))
     # all-stops only where the direction has a station to stop at after its release point
@@ -485,7 +457,7 @@ def run_capacity_study(
     examples_wanted = set(example_of.values())
     # longest first: VC convoys (largest first), then FBS/MB
     todo.sort(key=lambda c: (c.regime != "vc", -c.convoy_size))
-    params = study_params(line, net, stock, step_s, vc_step_s, seed, fixed_time_s)
+    params = study_params(line, net, stock, step_s, vc_step_s, seed, assumptions)
     keys = {c: case_key(params, c) for c in todo}
     by_key = {k: c for c, k in keys.items()}
 
@@ -501,7 +473,7 @@ def run_capacity_study(
         # an example case whose result cannot be read back runs again
         have = store.read().set_index("case_key")["error"]
         store.forget([keys[c] for c in examples_wanted if keys[c] in store and not have.get(keys[c]) and _load_example(out, c) is None])
-        tasks = [Task(keys[c], _case_task, (line, net, stock, setups[c.direction], c, out, step_s, vc_step_s, seed, fixed_time_s, c in examples_wanted, keys[c]),
+        tasks = [Task(keys[c], _case_task, (line, net, stock, setups[c.direction], c, out, step_s, vc_step_s, seed, assumptions, c in examples_wanted, keys[c]),
                       label(c)) for c in todo]
 
         def on_progress(done: int, total: int, rows: list[dict] | None) -> None:

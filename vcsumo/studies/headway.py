@@ -8,14 +8,17 @@ For each direction, regime (fbs, mb) and train type:
 2. identical trains are released at an interval h; the smallest h at which the follower is not
    hindered anywhere up to a measuring point (never slower than the unhindered leader at the same
    position, beyond 0.3 m/s or 0.5 %) is found by bisection (:mod:`vcsumo.studies.min_headway`);
-   the simulated minimum headway is the time between the two fronts passing the point in that
+   the follower's speed is compared up to 3 s past the point (a braking curve that binds at the
+   point shows a deficit a moment later); the simulated minimum headway is the time between the
+   two fronts passing the point in that
    run (``headway_sim_s``; the release interval is ``release_interval_s``).  By default a pair
    of trains is released (``n_trains=2``): blocking-time theory's headway is a property of two
    consecutive trains, and with longer sequences a bigger bottleneck *downstream* of the point
    spills back and shows up upstream (a flow effect of the downstream section, not of the point);
-3. beside it, the analytic headway of blocking-time theory (:mod:`vcsumo.signalling.blocking_time`) from the
-   same unhindered profile and the braking rule SUMO's driver uses: the largest blocking time met
-   between the release point and the measuring point.
+3. beside it, the regime's analytic headway from the separation model alone
+   (:mod:`vcsumo.signalling.regimes`: blocking-time theory with the guaranteed braking curves the
+   supervised trains keep), on the same unhindered profile: the largest blocking time met between
+   the release point and the measuring point.
 
 Writes ``headway.csv`` (one row per direction × regime × train × measuring point) and
 ``headway.png``; each probe's SUMO run is kept under ``runs/`` only for the final (minimum) h.
@@ -31,15 +34,9 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from vcsumo.signalling.blocking_time import (
-    SUMO_MB_MARGIN_M,
-    BrakingRule,
-    fbs_blocking_times,
-    fbs_headway_at,
-    mb_headway_at,
-    mb_headway_profile,
-    sumo_reaction_time,
-)
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
@@ -50,10 +47,20 @@ from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.timetable import PlannedTrain
 
+SPEED_TOL_ABS_MPS = 0.03
+SPEED_TOL_REL = 0.0
+"""A follower counts as hindered where it runs slower than the leader at the same position by more
+than 0.03 m/s: SUMO is deterministic, so identical unhindered trains agree to the interpolation
+between their samples (well below that), and any braking curve that binds shows at once."""
+DEFICIT_WINDOW_S = 1.0
+"""Speeds are compared up to where the follower is this long after the measuring point, s: theory
+counts every block whose approach point lies before the point, and a braking curve that starts to
+bind there shows a deficit of 0.03 m/s one step later (the cap applies from the next step)."""
+
 HEADWAY_COLUMNS = [
     "line", "direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s",
     "deviation_pct", "release_interval_s", "speed_at_point_mps", "critical_km", "block_length_m", "release_km", "release_speed_mps",
-    "hindrance_delay_s", "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "simulations",
+    "hindrance_delay_s", "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "simulations", "healthy", "min_margin_m", "assumptions",
 ]
 
 
@@ -80,7 +87,7 @@ def release_km(line: Line, direction: str) -> float:
     return d.km_start if direction == "up" else d.km_end
 
 
-def prepare_case(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float, n_trains: int):
+def prepare_case(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float, n_trains: int, model: SeparationModel):
     """Route, release state, planned trains and the unhindered run from the release point."""
     topo = net.topology
     track = topo.track_for("main", direction)
@@ -93,7 +100,7 @@ def prepare_case(line: Line, net: BuiltNetwork, stock: RollingStock, direction: 
         v0 = 0.0
         s_rel_full = start
     else:
-        run0 = unhindered_run(p, full, dt=step_s, s0=start, end_s=s_rel_full + 1.0, stop_at_end=False)
+        run0 = unhindered_run(p, full, dt=step_s, s0=start, end_s=s_rel_full + 1.0, stop_at_end=False, curve=RouteBraking(model, stock, full).curve(1.5 * step_s))
         v0 = speed_at(run0, s_rel_full)
         if math.isnan(v0):  # pragma: no cover
             raise VcsumoError(f"train {stock.name} cannot reach the release point {rel_km} km")
@@ -108,27 +115,31 @@ def prepare_case(line: Line, net: BuiltNetwork, stock: RollingStock, direction: 
         )
         for k in range(n_trains)
     ]
-    run = unhindered_run(p, prof, dt=step_s, s0=pos0, v0=v0, stop_at_end=False)
+    run = unhindered_run(p, prof, dt=step_s, s0=pos0, v0=v0, stop_at_end=False, curve=RouteBraking(model, stock, prof).curve(1.5 * step_s))
     return trains, prof, run, rel_km, v0
 
 
-def analytic_headways(net: BuiltNetwork, trains: list[PlannedTrain], prof: RouteProfile, run: pd.DataFrame, regime: str, stock: RollingStock, step_s: float) -> Callable[[float], tuple[float, float]]:
-    """Function x_m -> (analytic headway s, critical position m) for the regime."""
-    rule = BrakingRule(stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
-    if regime == "fbs":
-        blocks = fbs_blocking_times(run, prof.signal_positions(net.topology), prof.length_m, stock.length_m, rule)
-        return lambda x: fbs_headway_at(blocks, x)
-    profile = mb_headway_profile(run, stock.length_m, rule, SUMO_MB_MARGIN_M)
-    return lambda x: mb_headway_at(profile, x)
+def analytic_headways(net: BuiltNetwork, trains: list[PlannedTrain], prof: RouteProfile, run: pd.DataFrame, regime: str, stock: RollingStock, step_s: float,
+                      model: SeparationModel, route_end_m: float | None = None) -> Callable[[float], tuple[float, float]]:
+    """Function x_m -> (analytic headway s, critical position m) of the regime at measuring point x."""
+    signals = prof.signal_positions(net.topology)
+
+    def at(x: float) -> tuple[float, float]:
+        res = REGIMES[regime].analytic_headway(HeadwayInputs(model, stock, prof, run, signals, step_s, x, route_end_m))
+        return res.headway_s, res.critical_m
+
+    return at
 
 
 def run_headway_case(
     line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, regime: str, out: Path, points_km: list[float],
     step_s: float = 0.5, n_trains: int = 2, tolerance_s: float = 2.0, resolution_s: float = 0.25,
-    progress: Callable[[float, float], None] | None = None,
+    progress: Callable[[float, float], None] | None = None, assumptions: AssumptionSet | None = None,
 ) -> list[dict]:
     """Bisection on the release interval for one case; one row per measuring point."""
-    trains0, prof, run, rel_km, v0 = prepare_case(line, net, stock, direction, step_s, n_trains)
+    assumptions = assumptions or load_assumptions()
+    model = SeparationModel(assumptions)
+    trains0, prof, run, rel_km, v0 = prepare_case(line, net, stock, direction, step_s, n_trains, model)
     pts = []
     for k in points_km:
         try:
@@ -139,8 +150,6 @@ def run_headway_case(
             pts.append((f"km{k:g}", k, x))
     if not pts:
         return []
-    analytic = analytic_headways(net, trains0, prof, run, regime, stock, step_s)
-    guesses = {lab: analytic(x)[0] for lab, _, x in pts}
     # shorten the simulated route: last measuring point + braking distance + train + 2 km
     vmax = prof.max_speed()
     s_end = min(prof.length_m, max(x for _, _, x in pts) + vmax * vmax / (2 * stock.service_brake_decel_mps2) + stock.length_m + 2000.0)
@@ -148,6 +157,12 @@ def run_headway_case(
     edges = trains0[0].edges[: i_end + 1]
     cut = RouteProfile.from_edges(net.topology, edges)
     end_pos = min(s_end - float(cut.starts_m[-1]), float(cut.lengths_m[-1]))
+    # theory on the same (shortened) route the simulation runs: the last block ends where the trains leave
+    # (the trains leave at speed, so the leader's run is recomputed on that route)
+    run_cut = unhindered_run(stock.params(), cut, dt=step_s, s0=trains0[0].start_s_m, v0=v0, end_s=float(cut.starts_m[-1]) + end_pos, stop_at_end=False,
+                             curve=RouteBraking(model, stock, cut).curve(1.5 * step_s))
+    analytic = analytic_headways(net, trains0, cut, run_cut, regime, stock, step_s, model, route_end_m=float(cut.starts_m[-1]) + end_pos)
+    guesses = {lab: analytic(x)[0] for lab, _, x in pts}
     mps = [MeasuringPoint(lab, "main", k) for lab, k, _ in pts]
     probes_run = [0]
 
@@ -158,12 +173,14 @@ def run_headway_case(
         ]
         probes_run[0] += 1
         sub = out / "probes" / f"h{h:08.3f}"
-        sim = simulate(Scenario(line, net, trains, regime, step_length_s=step_s, measuring_points=mps, record_period_s=3600.0, full_outputs=False, trace_speeds=True), sub)
+        sim = simulate(Scenario(line, net, trains, regime, step_length_s=step_s, measuring_points=mps, record_period_s=3600.0, full_outputs=False, trace_speeds=True,
+                                assumptions=assumptions), sub)
         pr = Probe(h, sim.passages, {t.id: t.depart_s for t in trains}, sim.summary)
         order = [t.id for t in trains]
         pr.compute_delays([m.label for m in mps], order)
         start_delays = dict(zip(sim.trains.train, sim.trains.departure_delay_s.fillna(0.0)))
-        pr.compute_speed_deficits({lab: x for lab, _, x in pts}, sim.speed_traces, order, start_delays)
+        pr.compute_speed_deficits({lab: x + DEFICIT_WINDOW_S * speed_at(run, x) for lab, _, x in pts}, sim.speed_traces, order, start_delays,
+                                  rel_tol=SPEED_TOL_REL, abs_tol_mps=SPEED_TOL_ABS_MPS)
         return pr
 
     found = search_min_headway(run_at, [lab for lab, _, _ in pts], guesses, tolerance_s=tolerance_s, resolution_s=resolution_s)
@@ -182,6 +199,7 @@ def run_headway_case(
             "release_km": rel_km, "release_speed_mps": round(v0, 2), "hindrance_delay_s": round(pr.delays.get(lab, math.nan), 2),
             "min_gap_m": pr.summary["min_gap_m"], "gap_violations": pr.summary["gap_violations"],
             "collisions": pr.summary["collisions"], "emergency_brakes": pr.summary["emergency_brakes"], "simulations": probes_run[0],
+            "healthy": pr.summary["healthy"], "min_margin_m": pr.summary["min_margin_m"], "assumptions": assumptions.name,
         })
         if progress:
             progress(len(rows), len(pts))
@@ -200,6 +218,7 @@ def run_headway_case(
 def run_headway_study(
     line: Line, net: BuiltNetwork, stocks: list[RollingStock], regimes: list[str], out: Path, points_km: list[float] | None = None,
     step_s: float = 0.5, n_trains: int = 2, tolerance_s: float = 2.0, directions: tuple[str, ...] = ("up", "down"), progress_factory=None,
+    assumptions: AssumptionSet | None = None,
 ) -> pd.DataFrame:
     """Every direction × regime × train; writes ``headway.csv`` and ``headway.png`` into ``out``."""
     for r in regimes:
@@ -211,7 +230,7 @@ def run_headway_study(
     for d, r, st in cases:
         sub = out / "runs" / f"{d}_{r}_{st.name}"
         prog = progress_factory(f"{d} {r} {st.name}") if progress_factory else None
-        rows += run_headway_case(line, net, st, d, r, sub, pts, step_s=step_s, n_trains=n_trains, tolerance_s=tolerance_s, progress=prog)
+        rows += run_headway_case(line, net, st, d, r, sub, pts, step_s=step_s, n_trains=n_trains, tolerance_s=tolerance_s, progress=prog, assumptions=assumptions)
     df = pd.DataFrame(rows, columns=HEADWAY_COLUMNS)
     df.to_csv(out / "headway.csv", index=False)
     from vcsumo.plots.charts import plot_headway

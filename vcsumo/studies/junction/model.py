@@ -368,7 +368,7 @@ def simulate_pair(setup: Setup, case: Case, offset_s: float, solo_times: dict[st
         if case.variant == "braking-curve" and setup.merge is not None:
             merge = {follower.id: MergeSignal(setup.s_merge[follower.id], setup.s_merge[leader.id])}
         policy = JunctionPolicy([[leader, follower]], dt, link_handshake=link_warmup, speed_profile=speed_profile, merge_signals=merge,
-                                signal_decel=guard.follower_decel)
+                                signal_decel="emergency")
         driver = JunctionVCDriver([[leader, follower]], case.controller, dt, seed, load_channel(None), guard, policy)
     mps = measuring_points(setup)
     regime = case.regime if len(trains) == 2 else ("mb" if case.regime == "vc" else case.regime)

@@ -1,0 +1,96 @@
+"""Braking-curve supervision and run health in real SUMO (issue 11): every stop served on graded
+lines, no overspeed, no overrun, a moving-block follower stopping behind a train standing on a
+descent, merges without a train let in front of one that can no longer stop — and the same health
+counters firing when SUMO drives alone."""
+
+from __future__ import annotations
+
+import pytest
+
+from vcsumo.line import load_line
+from vcsumo.sim.loop import Scenario, simulate
+from vcsumo.sim.network import build_network
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.timetable import load_timetable, plan_trains
+
+from .conftest import write
+
+pytestmark = pytest.mark.sumo
+
+HEALTH = ["stops_skipped", "overspeed_events", "authority_overruns", "sumo_emergency_stops", "sumo_stop_warnings", "collisions",
+          "gap_violations", "beyond_service_brakings", "sumo_emergency_brakings", "teleports"]
+
+
+@pytest.fixture(scope="module")
+def regional(network_factory, line_factory):
+    line = line_factory("regional_graded")
+    net = network_factory("regional_graded")
+    tt, path = load_timetable("all_stations", line)
+    return line, net, plan_trains(tt, path, line, net.topology, dt=0.5)
+
+
+@pytest.mark.parametrize("regime", ["fbs", "mb"])
+def test_graded_line_every_stop_served_and_healthy(regional, regime, tmp_path):
+    """Stations on -10 to +10 ‰, a 100 km/h restriction on a descent, a terminus on a descent and a
+    branch train merging in front of main-line trains: all 64 stops served, nothing counted."""
+    line, net, trains = regional
+    res = simulate(Scenario(line, net, trains, regime, step_length_s=0.5), tmp_path / regime)
+    s = res.summary
+    assert s["stops_scheduled"] == 64 and s["stops_served"] == 64
+    assert s["trains_arrived"] == s["trains"] == 12
+    assert {k: s[k] for k in HEALTH} == {k: 0 for k in HEALTH}
+    assert s["healthy"] and s["min_margin_m"] >= -0.01
+    # every train at or below its permitted speed (+ tolerance) at every recorded second
+    tr = res.trajectories
+    assert len(tr) > 1000 and (res.trains.overspeed_max_kmh == 0).all()
+
+
+def test_sumo_alone_skips_stops_and_the_counters_fire(regional, tmp_path):
+    """Without supervision SUMO plans at the level-track deceleration: it skips stations on
+    descents and stops at the end of the track by an emergency stop — and the run says so."""
+    line, net, trains = regional
+    s = simulate(Scenario(line, net, trains, "fbs", step_length_s=0.5, supervise=False), tmp_path / "alone").summary
+    assert s["stops_skipped"] >= 10 and s["sumo_stop_warnings"] >= 10
+    assert s["sumo_emergency_stops"] >= 1
+    assert not s["healthy"]
+
+
+DESCENT = """
+name: descent
+km_start: 0.0
+km_end: 20.0
+line_speed_kmh: 200
+start_elevation_m: 300
+stations:
+  - {id: A, name: Top, km: 0.3, platform_length_m: 400, dwell_s: 30}
+  - {id: M, name: Slope, km: 12.0, platform_length_m: 400, dwell_s: 180}
+  - {id: B, name: Bottom, km: 19.6, platform_length_m: 400, dwell_s: 30}
+gradients:
+  - {from_km: 4.0, to_km: 16.0, permille: -11.5}
+signalling: {block_length_m: 1500}
+"""
+TT = """
+name: t
+line: descent
+services:
+  - {id: L, train: etr1000, origin: A, destination: B, departure: 0, stops: [{station: M}]}
+  - {id: F, train: etr1000, origin: A, destination: B, departure: 100}
+"""
+
+
+def test_moving_block_follower_stops_behind_a_train_standing_on_a_descent(tmp_path):
+    """A leader dwells 3 min at a station on -11.5 ‰; the follower, 100 s behind at 200 km/h, brakes on
+    its guaranteed curve and stands exactly margin + 2 position errors (70 m) behind its rear."""
+    line = load_line(write(tmp_path / "d" / "line.yaml", DESCENT))
+    net = build_network(line)
+    tt, p = load_timetable(write(tmp_path / "tt.yaml", TT), line)
+    trains = plan_trains(tt, p, line, net.topology, dt=0.5)
+    res = simulate(Scenario(line, net, trains, "mb"), tmp_path / "sup")
+    s = res.summary
+    a = load_assumptions()
+    assert s["healthy"] and s["collisions"] == 0 and s["gap_violations"] == 0 and s["stops_skipped"] == 0
+    assert s["min_gap_m"] == pytest.approx(a.safety_margin_m + 2 * a.position_error_m, abs=1.0)
+    # SUMO alone on the same case: the leader overshoots the station, the follower gets inside the
+    # safe separation, and both are counted
+    alone = simulate(Scenario(line, net, trains, "mb", supervise=False), tmp_path / "alone").summary
+    assert alone["stops_skipped"] >= 1 and alone["gap_violations"] >= 1 and alone["min_margin_m"] < -100

@@ -1,0 +1,97 @@
+"""The regime interface and what the analytic headways share: the supervised braking distance."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from vcsumo.rolling_stock import RollingStock
+from vcsumo.route_profile import RouteProfile
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
+
+SUPERVISION_REACTION_STEPS = 1.5
+"""The supervisor's curves add 1.5 simulation steps to the dead time (semi-implicit Euler), as
+:mod:`vcsumo.sim.supervision` does."""
+
+
+@dataclass(frozen=True)
+class SupervisedBraking:
+    """Braking distance of a train under the absolute rule, along its route, m.
+
+    D(v, s): after the dead time T + 1.5·Δt, guaranteed braking integrated over the gradient
+    profile (:class:`vcsumo.signalling.separation.RouteBraking`) — the rule the supervisor enforces.
+    """
+
+    model: SeparationModel
+    stock: RollingStock
+    profile: RouteProfile
+    step_s: float
+
+    @property
+    def dead_time_s(self) -> float:
+        return self.model.dead_time_s + SUPERVISION_REACTION_STEPS * self.step_s
+
+    def distance(self, v, s=None):
+        """D(v, s) on the route (s None: at the route's start), m (arrays accepted)."""
+        br = RouteBraking(self.model, self.stock, self.profile)
+        v_arr = np.atleast_1d(np.asarray(v, dtype=float))
+        s_arr = np.zeros_like(v_arr) if s is None else np.broadcast_to(np.atleast_1d(np.asarray(s, dtype=float)), v_arr.shape)
+        out = np.array([br.stopping_distance(float(sk), float(vk), self.dead_time_s) for vk, sk in zip(v_arr, s_arr)])
+        return float(out[0]) if np.ndim(v) == 0 else out
+
+
+@dataclass(frozen=True)
+class HeadwayInputs:
+    """What an analytic headway needs: one unit's leader running alone on its route."""
+
+    model: SeparationModel
+    stock: RollingStock
+    profile: RouteProfile
+    run: pd.DataFrame
+    """The leader's unhindered run (``time_s, s_m, speed_mps``) from the release point."""
+    signals_m: list[float]
+    """Route positions of the signals (FBS)."""
+    step_s: float
+    s_check_m: float
+    """The headway is the largest blocking time met between the release point and here."""
+    route_end_m: float | None = None
+    """Where the trains leave the route (None: the end of ``profile``)."""
+
+    @property
+    def end_m(self) -> float:
+        return self.profile.length_m if self.route_end_m is None else self.route_end_m
+
+    def braking(self) -> SupervisedBraking:
+        return SupervisedBraking(self.model, self.stock, self.profile, self.step_s)
+
+
+@dataclass(frozen=True)
+class AnalyticHeadway:
+    """A regime's minimum headway between two units, from the separation model."""
+
+    headway_s: float
+    critical_m: float
+    """Route position of the critical block or point."""
+    blocks: pd.DataFrame | None = None
+    """FBS: every block's blocking time (for the blocking-time stairs)."""
+    coupled_gap_m: float | None = None
+    """VC: the coupled front-to-rear gap at the release speed, m."""
+
+
+class Regime:
+    """A signalling regime (see :mod:`vcsumo.signalling.regimes`)."""
+
+    name: str = ""
+    title: str = ""
+    moving_block: bool = False
+    supervision: str = "mb"
+    couples: bool = False
+    default_step_s: float = 0.5
+
+    def analytic_headway(self, inp: HeadwayInputs, convoy_size: int = 1) -> AnalyticHeadway:
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        return f"<regime {self.name}>"

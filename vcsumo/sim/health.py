@@ -1,0 +1,167 @@
+"""Run health: every anomaly of every train, counted at every step from the first, never assumed away.
+
+A run is *healthy* when every train arrived, every scheduled stop was served, no train ran above its
+permitted speed (+ the assumption set's tolerance), no train passed its end of movement authority
+or stopped at the end of the track, nothing collided, no train came closer to the one ahead than the
+regime's safe separation, and no train SUMO drives braked beyond its service rate (a sign that its
+braking was planned wrong).  Emergency applications of vcsumo's VC controllers and supervisors are
+counted separately (they are the safety layer working, reported, not a planning failure).
+
+The safe separation is the one of :mod:`vcsumo.signalling.separation`, evaluated on the true
+states: for trains under absolute braking (FBS, MB, convoy leaders) the gap they need to stop
+behind the train ahead's rear with their guaranteed brake after the dead time, plus margin and
+position errors; for virtually coupled followers the relative-braking gap against the leader's
+strongest brake (the driver supplies it).  There is no low-speed exemption: standing behind
+another train the margin and the position errors remain.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, strongest_decel
+from vcsumo.timetable import PlannedTrain
+
+GAP_TOLERANCE_M = 0.01
+"""Numerical tolerance of the separation test, m."""
+DECEL_TOLERANCE_MPS2 = 0.02
+"""Braking counted beyond the service rate above the strongest service deceleration plus this, m/s²."""
+AUTHORITY_TOLERANCE_M = 0.5
+"""A front more than this past its end of movement authority is an overrun, m."""
+
+
+@dataclass
+class TrainHealth:
+    """Counters of one train (SI units)."""
+
+    min_margin_m: float = math.inf
+    """Smallest gap minus the safe separation, m."""
+    below_separation_time_s: float = 0.0
+    below_separation_distance_m: float = 0.0
+    separation_violations: int = 0
+    """Times the gap fell below the safe separation."""
+    overspeed_events: int = 0
+    overspeed_max_kmh: float = 0.0
+    overspeed_time_s: float = 0.0
+    beyond_service_events: int = 0
+    max_decel_mps2: float = 0.0
+    overruns: int = 0
+    max_overrun_m: float = 0.0
+    collisions: int = 0
+    max_impact_kmh: float = 0.0
+    _below: bool = field(default=False, repr=False)
+    _over: bool = field(default=False, repr=False)
+    _beyond: bool = field(default=False, repr=False)
+    _overrun: bool = field(default=False, repr=False)
+    _cache: dict = field(default_factory=dict, repr=False)
+
+
+class HealthMonitor:
+    """Per-step safety and health accounting of a run (see the module doc)."""
+
+    def __init__(self, model: SeparationModel, trains: list[PlannedTrain]):
+        self.model = model
+        self.plans = {t.id: t for t in trains}
+        self.trains: dict[str, TrainHealth] = {t.id: TrainHealth() for t in trains}
+        self.braking = {t.id: RouteBraking(model, t.stock, t.profile) for t in trains}
+        self.relative: dict[tuple[str, str], RelativeBraking] = {}
+        self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
+        self.collision_rows: list[tuple] = []
+
+    # ------------------------------------------------------------------------------------------
+    def absolute_gap(self, train_id: str, s_m: float, v_mps: float) -> float:
+        """The safe separation of a train under absolute braking at (s, v), m: margin and position
+        errors plus the distance it needs to stop on its route (guaranteed braking on the grades
+        between its rear and where it stops, after the dead time)."""
+        return self.model.margin_m + self.braking[train_id].stopping_distance(s_m, v_mps, self.model.dead_time_s)
+
+    def relative_gap(self, train_id: str, s_m: float, v_mps: float, leader_id: str, gap_m: float, leader_v_mps: float) -> float:
+        """The safe separation of a virtually coupled follower behind ``leader_id`` (the separation
+        model's relative braking on the true states, no message age), m."""
+        pl = self.plans.get(leader_id)
+        if pl is None:
+            return self.absolute_gap(train_id, s_m, v_mps)
+        rule = self.relative.get((train_id, leader_id))
+        if rule is None:
+            p = self.plans[train_id]
+            rule = self.relative[(train_id, leader_id)] = RelativeBraking(self.model, p.stock, pl.stock, p.profile)
+        s_l = s_m + gap_m + pl.stock.length_m  # the leader's front in the follower's route frame
+        return rule.required_gap(s_m, v_mps, s_l, leader_v_mps, self.model.dead_time_s)
+
+    def _service_limit(self, train_id: str, s_m: float, v_mps: float) -> float:
+        p = self.plans[train_id]
+        h = self.trains[train_id]
+        _, g_high = p.profile.gradient_range(s_m - p.stock.length_m, s_m)
+        key = ("srv", round(g_high, 5), int(v_mps))
+        a = h._cache.get(key)
+        if a is None:
+            a = strongest_decel(p.stock, self.model.assumptions, "service", v_mps + 1.0, g_high)
+            h._cache[key] = a
+        return a
+
+    def update(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, required_gap_m: float,
+               authority_m: float = math.inf, driven_by_sumo: bool = True) -> bool:
+        """One step of one train; True when its gap has just fallen below the safe separation."""
+        h = self.trains[train_id]
+        p = self.plans[train_id]
+        # separation, at every speed
+        below = started = False
+        if math.isfinite(gap_m):
+            margin = gap_m - required_gap_m
+            h.min_margin_m = min(h.min_margin_m, margin)
+            below = margin < -GAP_TOLERANCE_M
+            if below:
+                h.below_separation_time_s += dt
+                h.below_separation_distance_m += v_mps * dt
+                if not h._below:
+                    h.separation_violations += 1
+                    started = True
+        h._below = below
+        # permitted speed
+        limit = min(p.profile.speed_limit_train(s_m, p.stock.length_m), p.stock.max_speed_ms)
+        excess = v_mps - limit
+        over = excess > self.tol_mps
+        if over:
+            h.overspeed_time_s += dt
+            h.overspeed_max_kmh = max(h.overspeed_max_kmh, 3.6 * excess)
+            if not h._over:
+                h.overspeed_events += 1
+        h._over = over
+        # braking beyond the service rate (trains SUMO drives plan with service braking)
+        decel = -accel_mps2
+        h.max_decel_mps2 = max(h.max_decel_mps2, decel)
+        beyond = driven_by_sumo and decel > self._service_limit(train_id, s_m, v_mps) + DECEL_TOLERANCE_MPS2
+        if beyond and not h._beyond:
+            h.beyond_service_events += 1
+        h._beyond = beyond
+        # end of movement authority
+        overrun = driven_by_sumo and authority_m < -AUTHORITY_TOLERANCE_M
+        if overrun:
+            h.max_overrun_m = max(h.max_overrun_m, -authority_m)
+            if not h._overrun:
+                h.overruns += 1
+        h._overrun = overrun
+        return started
+
+    def collision(self, time_s: float, collider: str, victim: str, collider_speed_mps: float, victim_speed_mps: float) -> None:
+        impact = 3.6 * max(0.0, collider_speed_mps - victim_speed_mps)
+        self.collision_rows.append((time_s, collider, victim, round(impact, 2)))
+        for tid in (collider, victim):
+            if tid in self.trains:
+                self.trains[tid].collisions += 1
+                self.trains[tid].max_impact_kmh = max(self.trains[tid].max_impact_kmh, impact)
+
+    def train_row(self, train_id: str) -> dict:
+        """The train's counters as summary columns (units in the names)."""
+        h = self.trains[train_id]
+        return {
+            "min_margin_m": None if math.isinf(h.min_margin_m) else round(h.min_margin_m, 2),
+            "below_separation_time_s": round(h.below_separation_time_s, 2),
+            "below_separation_distance_m": round(h.below_separation_distance_m, 1),
+            "separation_violations": h.separation_violations,
+            "overspeed_events": h.overspeed_events, "overspeed_max_kmh": round(h.overspeed_max_kmh, 2),
+            "beyond_service_brakings": h.beyond_service_events, "max_decel_mps2": round(h.max_decel_mps2, 3),
+            "authority_overruns": h.overruns, "max_overrun_m": round(h.max_overrun_m, 2),
+            "collisions": h.collisions, "max_impact_kmh": round(h.max_impact_kmh, 2),
+        }

@@ -1,0 +1,207 @@
+"""Braking-curve supervision of the trains SUMO drives: plan every brake with the guaranteed deceleration.
+
+SUMO's Rail model plans every stop, speed reduction and red signal at the vType's constant
+``decel``, while the braking it delivers is ``decel + (R + M·g·i)/(M·ρ)``: on a descent less than it
+planned, so trains skip stops, enter restrictions too fast and overrun the end of the track (issue
+11).  The supervisor gives every train SUMO drives a *permitted speed* — the lowest braking curve to
+its targets ahead — computed with the deceleration it is **guaranteed** to have where it brakes
+(:func:`vcsumo.signalling.separation.guaranteed_decel`: brake at the bottom of the box, the
+steepest descent between its rear and the target), and the loop commands that speed whenever SUMO
+would run faster.  Targets:
+
+* every place where the speed limit drops (the train must be down to the limit when its front gets
+  there; SUMO holds the lower limit until the whole train has passed);
+* its next scheduled stop: the curve ends at SUMO's stopping point, and the train keeps at least
+  a creep speed of 0.3 m/s until it is there (a curve that ends exactly there would approach it
+  for ever; one that ends beyond it hands SUMO a train too fast to stop and SUMO skips the stop:
+  both seen on the graded regional line);
+* the end of its route where it has to stop there (end of track);
+* its **end of movement authority** — a merging junction it has to wait at
+  (:mod:`vcsumo.sim.interlocking`), and the regime's: FBS — the last signal at least ``overlap_m``
+  behind the rear of the train ahead (ETCS L2 with overlap); MB — the rear of the train ahead as
+  of its last position report, minus the safety margin and the position error of both trains
+  (ETCS L3).  These use the assumption set's dead time (reaction + half the brake build-up); the
+  operational targets (limits, stops) only the simulation step.  ETCS fixed times (route setting,
+  MA transmission, reaction; ``fixed_time_s``) make the authority that much older: it is built from
+  where the train ahead was ``fixed_time_s`` ago (MB: from its last report sent by then), so every
+  headway grows by about that time.
+
+The permitted speed for the next step accounts for the step itself (SUMO's semi-implicit Euler
+moves the train ``v·Δt`` at the new speed before it can brake again): the dead time is lengthened by
+1.5·Δt, as in :func:`vcsumo.dynamics.discrete_stop_speed`.
+
+What this costs in headway is what the separation model says: the analytic headways of the
+regimes (:mod:`vcsumo.signalling.regimes`) use the same decelerations and dead times.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from collections import deque
+from dataclasses import dataclass, field
+
+from vcsumo.errors import VcsumoError
+from vcsumo.running_time import STOP_CREEP_MPS
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
+from vcsumo.timetable import PlannedTrain
+
+
+
+@dataclass
+class _Curves:
+    plan: PlannedTrain
+    restrictions: list[tuple[float, float]]
+    stops: list[float]
+    end_s: float | None
+    signals: list[float]
+    braking: RouteBraking
+    next_stop: int = 0
+    first_seen_s: float = math.nan
+    odo_m: float = 0.0
+    history_t: deque = field(default_factory=deque)
+    history_odo: deque = field(default_factory=deque)
+
+
+@dataclass(frozen=True)
+class Permitted:
+    """A train's permitted speed and what set it."""
+
+    speed_mps: float
+    reason: str
+    """'limit', 'stop', 'end', 'authority' or '' (nothing ahead within reach)."""
+    authority_m: float = math.inf
+    """Distance from the front to the end of movement authority (inf: none ahead), m."""
+
+
+class BrakingCurveSupervisor:
+    """Permitted speeds of the trains SUMO drives under ``regime`` ('fbs' or 'mb')."""
+
+    def __init__(self, model: SeparationModel, regime: str, trains: list[PlannedTrain], step_s: float, signals: dict[str, list[float]] | None = None,
+                 fixed_time_s: float | None = None, locking=None):
+        if regime not in ("fbs", "mb"):
+            raise ValueError(f"braking-curve supervision of regime '{regime}' (fbs or mb)")
+        self.model = model
+        self.regime = regime
+        self.step_s = step_s
+        self.fixed_time_s = model.assumptions.fixed_time_s if fixed_time_s is None else fixed_time_s
+        self.curves: dict[str, _Curves] = {}
+        self.locking = locking
+        """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
+        kind = model.assumptions.absolute_braking
+        for t in trains:
+            stops = [x.s_m for x in t.stops]
+            if t.final_stop is not None:
+                stops.append(t.final_stop.s_m)
+            end_s = None
+            if t.final_stop is None and t.stop_at_end:
+                end_s = t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m)
+            try:
+                braking = RouteBraking(model, t.stock, t.profile, kind)
+            except ValueError:
+                g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
+                raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
+                                  f"({1000 * g_low:.1f} ‰) under the assumption set '{model.assumptions.name}'") from None
+            self.curves[t.id] = _Curves(t, t.profile.restriction_targets(), sorted(stops), end_s, sorted((signals or {}).get(t.id, [])), braking)
+
+    # ------------------------------------------------------------------------------------------
+    def observe(self, train_id: str, time_s: float, odometer_m: float) -> None:
+        """The train's odometer this step (kept as long as the fixed time and report period need)."""
+        c = self.curves.get(train_id)
+        if c is None:
+            return
+        if math.isnan(c.first_seen_s):
+            c.first_seen_s = time_s
+        c.odo_m = odometer_m
+        c.history_t.append(time_s)
+        c.history_odo.append(odometer_m)
+        keep = self.fixed_time_s + self.model.assumptions.position_report_period_s + 2.0 * self.step_s
+        while len(c.history_t) > 2 and c.history_t[1] <= time_s - keep:
+            c.history_t.popleft()
+            c.history_odo.popleft()
+
+    def _moved_since(self, c: _Curves, t_ref: float) -> float:
+        """How far a train has run since t_ref (from its history; since it was first seen if older), m."""
+        ts, odo = c.history_t, c.history_odo
+        if not ts:
+            return 0.0
+        i = bisect_right(ts, t_ref)
+        if i == 0:
+            return c.odo_m - odo[0]
+        if i >= len(ts):
+            return 0.0
+        t0, t1 = ts[i - 1], ts[i]
+        then = odo[i - 1] + (odo[i] - odo[i - 1]) * (t_ref - t0) / max(t1 - t0, 1e-9)
+        return c.odo_m - then
+
+    def information_time(self, leader_id: str, now_s: float) -> float:
+        """Time of the train ahead's position the follower's authority is built from, s: ``fixed_time_s``
+        ago (FBS), or its last position report sent by then (MB: one every report period)."""
+        t_ref = now_s - self.fixed_time_s
+        period = self.model.assumptions.position_report_period_s
+        lead = self.curves.get(leader_id)
+        if self.regime == "mb" and period > 0 and lead is not None and not math.isnan(lead.first_seen_s):
+            t_ref = lead.first_seen_s + math.floor((t_ref - lead.first_seen_s) / period + 1e-9) * period
+        return t_ref
+
+    def authority_distance(self, train_id: str, s_m: float, gap_m: float, leader_id: str | None, now_s: float) -> float:
+        """Distance from the front to the end of movement authority given the train ahead, m."""
+        if leader_id is None or math.isinf(gap_m):
+            return math.inf
+        a = self.model.assumptions
+        c = self.curves[train_id]
+        lead = self.curves.get(leader_id)
+        moved = 0.0 if lead is None else self._moved_since(lead, self.information_time(leader_id, now_s))
+        rear = s_m + gap_m - moved
+        if self.regime == "mb":
+            return rear - s_m - a.safety_margin_m - a.position_uncertainty_m
+        # the rear as the interlocking knows it (less the train ahead's position error) must be an
+        # overlap beyond the signal that ends the authority; the train stops its own position error
+        # short of that signal
+        clear = rear - a.overlap_m - a.position_error_m
+        k = bisect_right(c.signals, clear) - 1
+        if k < 0 or c.signals[k] < s_m - 2 * a.position_error_m - 1.0:
+            # no signal between the train and the rear of the one ahead: it moves on sight behind it
+            return clear - s_m - a.position_error_m
+        return c.signals[k] - s_m - a.position_error_m
+
+    def permitted(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None) -> Permitted:
+        """The lowest braking curve over the train's targets, for the next step, m/s."""
+        c = self.curves.get(train_id)
+        if c is None:
+            return Permitted(math.inf, "")
+        p = c.plan
+        a_set = self.model.assumptions
+        dt = self.step_s
+        best, reason = math.inf, ""
+        # how far ahead a target can matter: the stopping distance with a generous margin
+        br = c.braking
+        reach = 1.3 * br.stopping_distance(s_m, v_mps, a_set.dead_time_s + 2 * dt) + 50.0
+        for s_t, v_t in c.restrictions:
+            if s_t <= s_m:
+                continue
+            if s_t - s_m > reach:
+                break
+            vp = br.permitted_speed(s_m, s_t, v_t, 1.5 * dt, v_mps)
+            if vp < best:
+                best, reason = vp, "limit"
+        while c.next_stop < len(c.stops) and c.stops[c.next_stop] < s_m - 1.0:
+            c.next_stop += 1
+        if c.next_stop < len(c.stops):
+            s_t = c.stops[c.next_stop]
+            if s_t - s_m <= reach:
+                vp = max(STOP_CREEP_MPS, br.permitted_speed(s_m, s_t, 0.0, 1.5 * dt, v_mps))
+                if vp < best:
+                    best, reason = vp, "stop"
+        if c.end_s is not None and c.end_s - s_m <= reach:
+            vp = br.permitted_speed(s_m, c.end_s - a_set.position_error_m, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
+            if vp < best:
+                best, reason = vp, "end"
+        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s)
+        if self.locking is not None:
+            d_ma = min(d_ma, self.locking.authority_distance(train_id, s_m))
+        if d_ma <= reach:
+            vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
+            if vp < best:
+                best, reason = vp, "authority"
+        return Permitted(best, reason, d_ma)
