@@ -125,8 +125,6 @@ def test_study_writes_tables_and_plots(study):
 
 
 @pytest.mark.sumo
-@pytest.mark.xfail(strict=True, reason="issue 11: the junction study's own merge order (railSignalConstraints in its additional file) and the loop's "
-                   "approach locking (sim/interlocking.py) are not yet one mechanism: the FBS pair's order flips at the merge")
 def test_vc_merges_closer_and_lets_more_trains_through(study):
     _, df = study
     for d, g in df.groupby("direction"):

@@ -9,7 +9,9 @@ in ahead of it).
 :class:`MergeLocking` orders the trains at every merging junction (a rail signal where two tracks
 join) by the moment each one *locks* the junction: when it comes within its guaranteed stopping
 distance of the junction plus ``lock_time_s`` of running (and at the latest when it cannot stop
-before it).  The order is first come, first served, unless a scenario fixes it.  Every train behind
+before it).  The order is first come, first served, unless a scenario fixes it
+(``Scenario.merge_orders``: then a train waits for every train the fixed order puts before it that
+has not cleared the junction yet, whether or not that train has locked it).  Every train behind
 another one from a different track then
 
 * is held by SUMO: vcsumo adds a rail-signal constraint (``predecessor``: it may pass the junction
@@ -20,6 +22,12 @@ another one from a different track then
   to reach past the junction (overlap or margin, position errors, and the age of a report) — so
   the supervision brakes it there on its guaranteed braking curve, in time, and the hand-over to
   the authority behind the train ahead is seamless.
+
+A virtually coupled follower (driven by vcsumo, not by SUMO) gets the same end of authority from
+:meth:`MergeLocking.authority_distance` (the loop hands it to the driver in its ``Snapshot``), with
+one difference: behind its own convoy predecessor (``coupled_to``) the junction is released as soon
+as the predecessor's front has passed it — from there the relative-braking rule on the virtual gap
+keeps the follower behind the predecessor's rear, which then clears the junction ahead of it.
 """
 
 from __future__ import annotations
@@ -51,6 +59,8 @@ class _Junction:
     """Trains that locked the junction, first first (removed once their rear has cleared it)."""
     fixed: list[str] = field(default_factory=list)
     """An order the scenario imposes (e.g. the junction study's main/branch first)."""
+    cleared: set[str] = field(default_factory=set)
+    """Trains whose rear has cleared the junction (or that left the network)."""
 
 
 def merge_nodes(topo: Topology) -> set[str]:
@@ -81,28 +91,33 @@ class MergeLocking:
                     out.append(_Approach(e.to_node, float(t.profile.starts_m[i] + t.profile.lengths_m[i]), e.track))
             self.approaches[t.id] = out
         self.junctions: dict[str, _Junction] = {n: _Junction(n) for n in merges}
-        for node, order in (fixed_orders or {}).items():
-            if node in self.junctions:
-                self.junctions[node].fixed = list(order)
         self.gone: set[str] = set()
         self.constraints: set[tuple[str, str, str]] = set()
         """(junction, train, foe) constraints added to SUMO."""
         self.track_of: dict[tuple[str, str], str] = {(a.node, tid): a.track for tid, aps in self.approaches.items() for a in aps}
         self.position: dict[tuple[str, str], float] = {(a.node, tid): a.s_m for tid, aps in self.approaches.items() for a in aps}
+        for node, order in (fixed_orders or {}).items():
+            if node in self.junctions:  # only the trains that pass the junction
+                self.junctions[node].fixed = [tid for tid in order if (node, tid) in self.track_of]
+        self.s_m: dict[str, float] = {}
+        """Latest route position of every running train's front, m."""
 
     def update(self, states: dict[str, tuple[float, float]]) -> list[tuple[str, str, str]]:
         """Advance the orders with this step's (route position, speed) of the trains running;
         returns the new constraints (junction, train, foe) to add to SUMO."""
         a = self.model.assumptions
         new: list[tuple[str, str, str]] = []
+        self.s_m.update({tid: st[0] for tid, st in states.items()})
         for tid, (s_m, v) in states.items():
             for ap in self.approaches.get(tid, ()):
                 j = self.junctions[ap.node]
-                if tid in j.order or s_m > ap.s_m:
+                if tid in j.order or tid in j.cleared:
                     continue
+                if j.fixed and tid in j.fixed:
+                    self._constrain(j, tid, new)  # a fixed order holds from the start: SUMO never sets the route first
                 d = ap.s_m - s_m
                 stop = self.braking[tid].stopping_distance(s_m, v, a.dead_time_s)
-                if d <= stop + v * self.lock_time_s + a.position_error_m:
+                if d <= stop + v * self.lock_time_s + a.position_error_m:  # also a train already past the signal
                     self._lock(j, tid, new)
         # a train leaves the order once its rear has cleared the junction (or it has left the network)
         for j in self.junctions.values():
@@ -117,42 +132,69 @@ class MergeLocking:
                     keep.append(tid)
                 elif st is None and tid not in self.gone:
                     keep.append(tid)  # not yet departed: keeps its place
+                else:
+                    j.cleared.add(tid)
             j.order = keep
         return new
 
     def arrived(self, gone: list[str]) -> None:
         """Trains that left the network."""
         self.gone.update(gone)
+        for tid in gone:
+            for ap in self.approaches.get(tid, ()):
+                if tid not in self.junctions[ap.node].order:
+                    self.junctions[ap.node].cleared.add(tid)
 
     def _lock(self, j: _Junction, tid: str, new: list) -> None:
-        if j.fixed and tid in j.fixed:
-            k = j.fixed.index(tid)
-            ahead = [x for x in j.fixed[:k]]
-            j.order = [x for x in j.order if x in ahead] + [tid] + [x for x in j.order if x not in ahead]
+        if j.fixed and tid in j.fixed:  # in front of the trains the fixed order puts after it
+            later = set(j.fixed[j.fixed.index(tid) + 1:])
+            k = next((i for i, x in enumerate(j.order) if x in later), len(j.order))
+            j.order.insert(k, tid)
         else:
             j.order.append(tid)
-        track = self.track_of[(j.node, tid)]
-        for foe in j.order[: j.order.index(tid)]:
-            if self.track_of[(j.node, foe)] != track and (j.node, tid, foe) not in self.constraints:
-                self.constraints.add((j.node, tid, foe))
-                new.append((j.node, tid, foe))
+        self._constrain(j, tid, new)
 
-    def authority_distance(self, tid: str, s_m: float) -> float:
-        """Distance to the end of authority a junction ahead sets (inf: none), m."""
+    def ahead(self, node: str, tid: str) -> list[str]:
+        """Trains that pass junction ``node`` before ``tid`` and have not cleared it yet."""
+        j = self.junctions[node]
+        before = j.order[: j.order.index(tid)] if tid in j.order else list(j.order)  # not locked yet: every train that has locked it goes first
+        if j.fixed and tid in j.fixed:
+            k = j.fixed.index(tid)
+            before = [x for x in before if x not in j.fixed[k + 1:]]
+            before += [x for x in j.fixed[:k] if x not in j.cleared and x not in before]
+        return before
+
+    def _constrain(self, j: _Junction, tid: str, new: list) -> None:
+        """SUMO's rail signal lets ``tid`` pass only after every train ahead of it from another track
+        — added while that train's front has not reached the signal (SUMO counts passages from then)."""
+        track = self.track_of[(j.node, tid)]
+        for foe in self.ahead(j.node, tid):
+            if self.track_of[(j.node, foe)] == track or (j.node, tid, foe) in self.constraints:
+                continue
+            if self.s_m.get(foe, -math.inf) > self.position[(j.node, foe)]:
+                continue  # already through the signal
+            self.constraints.add((j.node, tid, foe))
+            new.append((j.node, tid, foe))
+
+    def authority_distance(self, tid: str, s_m: float, coupled_to: str | None = None) -> float:
+        """Distance to the end of authority a junction ahead sets (inf: none), m.
+
+        ``coupled_to``: the train's convoy predecessor when vcsumo drives it virtually coupled; the
+        junction is released behind it once its front has passed it (module doc)."""
         best = math.inf
         for ap in self.approaches.get(tid, ()):
             if ap.s_m < s_m:
                 continue
-            j = self.junctions[ap.node]
             track = ap.track
-            if tid in j.order:
-                before = j.order[: j.order.index(tid)]
-            else:  # not locked yet: every train that has locked it goes first
-                before = j.order
-            if any(self.track_of[(j.node, x)] != track for x in before):
+            for x in self.ahead(ap.node, tid):
+                if self.track_of[(ap.node, x)] == track:
+                    continue
+                if x == coupled_to and self.s_m.get(x, -math.inf) >= self.position[(ap.node, x)]:
+                    continue
                 # the train ahead may stand with its rear at the fouling point: the same margin and
                 # position errors as behind any rear
                 best = min(best, ap.s_m - s_m - self.model.margin_m)
+                break
         return best
 
     def fouling_gap(self, tid: str, s_m: float, leader: str, leader_s_m: float) -> float | None:

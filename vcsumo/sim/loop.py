@@ -83,6 +83,10 @@ class Snapshot:
     time_s: float
     step_s: float
     trains: dict[str, TrainState]
+    junction_authority_m: dict[str, float] = field(default_factory=dict)
+    """Distance from a convoy follower's front to the end of movement authority a merging junction
+    ahead sets (approach locking, :meth:`vcsumo.sim.interlocking.MergeLocking.authority_distance`
+    behind its predecessor), m; absent: none."""
 
 
 class Driver(Protocol):
@@ -332,7 +336,14 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     capped.discard(vid)
             if scn.driver is not None:
                 t0 = time.perf_counter()
-                commands = scn.driver.make_step(Snapshot(t, dt, snap_trains))
+                ends = {}
+                if locking is not None:  # what the approach locking allows each convoy follower at the merges ahead
+                    for vid, ts in snap_trains.items():
+                        pred = scn.driver.predecessor_of(vid)
+                        d_ma = locking.authority_distance(vid, ts.s_m, coupled_to=pred) if pred is not None else math.inf
+                        if math.isfinite(d_ma):
+                            ends[vid] = d_ma
+                commands = scn.driver.make_step(Snapshot(t, dt, snap_trains, ends))
                 timing["controller_s"] += time.perf_counter() - t0
                 for vid, v_cmd in commands.items():
                     tr = state.get(vid)

@@ -117,14 +117,14 @@ from __future__ import annotations
 
 from vcsumo.studies.junction.metrics import (HINDRANCE_ABS_MPS, HINDRANCE_REL, actual_order, formation, lost_time, run_metrics, signal_exposure,
                                              signal_rows, speed_at_trace, trajectory_rows, unhindered, virtual_gap)
-from vcsumo.studies.junction.model import (ROLES, SIGNAL_VARIANTS, Case, JunctionVCDriver, RunResult, Setup, build_setup, default_junctions, link_of,
+from vcsumo.studies.junction.model import (ROLES, SIGNAL_VARIANTS, Case, RunResult, Setup, build_setup, default_junctions, link_of,
                                            measuring_points, merge_direction, partner_junction, resolve_junctions, signal_links, signal_nodes,
                                            simulate_pair, solo_runs, trains_for)
 from vcsumo.studies.junction.study import DEFAULT_OFFSETS_S, JUNCTION_COLUMNS, CaseOutcome, cases_for, run_case, run_junction_study
 
 __all__ = [
-    "DEFAULT_OFFSETS_S", "HINDRANCE_ABS_MPS", "HINDRANCE_REL", "JUNCTION_COLUMNS", "ROLES", "SIGNAL_VARIANTS", "Case", "CaseOutcome", "JunctionVCDriver",
-    "RunResult", "Setup", "actual_order", "build_setup", "cases_for", "default_junctions", "formation", "link_of", "lost_time", "measuring_points",
+    "DEFAULT_OFFSETS_S", "HINDRANCE_ABS_MPS", "HINDRANCE_REL", "JUNCTION_COLUMNS", "ROLES", "SIGNAL_VARIANTS", "Case", "CaseOutcome", "RunResult",
+    "Setup", "actual_order", "build_setup", "cases_for", "default_junctions", "formation", "link_of", "lost_time", "measuring_points",
     "merge_direction", "partner_junction", "resolve_junctions", "run_case", "run_junction_study", "run_metrics", "signal_exposure", "signal_links",
     "signal_nodes", "signal_rows", "simulate_pair", "solo_runs", "speed_at_trace", "trains_for", "trajectory_rows", "unhindered", "virtual_gap",
 ]

@@ -18,7 +18,8 @@ from vcsumo.line import Line
 from vcsumo.plots.junction import plot_junction_regimes, plot_junction_sweep
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.control.guard import guaranteed_decel, strongest_decel
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import RelativeBraking, SeparationModel
 from vcsumo.control.registry import parse_controller
 from vcsumo.studies.junction.metrics import actual_order, formation, run_metrics, signal_rows, speed_at_trace, trajectory_rows, unhindered
 from vcsumo.studies.junction.model import (ROLES, SIGNAL_VARIANTS, Case, RunResult, Setup, build_setup, resolve_junctions, signal_links, simulate_pair,
@@ -48,18 +49,20 @@ JUNCTION_COLUMNS = [
 # A case: sweep, bisection, analysis runs
 
 
-def _relative_braking_offset(setup: Setup, dt: float) -> float:
-    """Release interval a follower needs behind a leader at the common release point to keep the
-    relative braking distance of the VC guard there (gradients over the braking distance ahead) + 60 m, s."""
+def _relative_braking_offset(setup: Setup, dt: float, model: SeparationModel) -> float:
+    """Release interval a follower needs behind a leader at the common release point, both at the
+    release speed, to keep the separation model's relative-braking gap there (the VC guard's rule:
+    dead time + 1.5 steps, the messages' age bound) + 10 m, s."""
     stock, v = setup.stock, setup.start_v["main"]
-    p = stock.params()
     if v <= 0.5:
         return 0.0
     s0 = setup.start_s["main"]
-    g_low, g_high = setup.profiles["main"].gradient_range(s0 - p.length_m, s0 + v * v / (2 * stock.service_brake_decel_mps2) + 10.0)
-    b_f = guaranteed_decel(p, v, stock.emergency_brake_decel_mps2, g_low)
-    a_l = strongest_decel(p, v, stock.emergency_brake_decel_mps2, g_high, 1.5)
-    gap = max(0.0, 1.5 * v * dt + v * v / (2 * b_f) - v * v / (2 * a_l)) + 60.0
+    rule = RelativeBraking(model, stock, stock, setup.profiles["main"])
+    dead = model.dead_time_s + model.assumptions.t2t_delay_bound_s + 1.5 * dt
+    gap = model.vc_gap(stock, stock, v)
+    for _ in range(2):  # the leader's front where the gap puts it (its grades)
+        gap = rule.required_gap(s0, v, s0 + gap + stock.length_m, v, dead)
+    gap += 10.0
     return (gap + stock.length_m) / v
 
 
@@ -79,7 +82,7 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
     solo_times = {r: solo[r].passages[setup.key[0].upper()][r] - solo[r].departures[r] for r in ROLES}
     d0 = 0.0
     if setup.merge is None:  # both start at the same point: the follower must fit behind the leader
-        d0 = math.ceil(_relative_braking_offset(setup, dt))
+        d0 = math.ceil(_relative_braking_offset(setup, dt, SeparationModel(load_assumptions())))
     cache: dict[float, tuple[dict, RunResult]] = {}
     count = [0]
 
