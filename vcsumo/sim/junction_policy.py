@@ -5,8 +5,16 @@ switch of :class:`JunctionPolicy`:
 
 * ``link_handshake`` — a follower joins its convoy only once the first train-to-train message of
   its predecessor has arrived; until then SUMO drives it (under the loop's braking-curve
-  supervision).  Without it the driver couples a follower as soon as its predecessor is in the
-  simulation, holding the predecessor's state of that first step as if a message had come.
+  supervision).  A follower that joins its predecessor's track at a merge (its route does not start
+  on the predecessor's) also waits until that message puts the predecessor virtually ahead of it by
+  at least the spacing its stack keeps (``spacing(follower, v)``: the controller's coupled gap, at
+  least its minimum safe gap — with a CBF its safety distance d): approaching on another track it
+  is in no conflict with its predecessor but at the junction, where the end of authority protects
+  it, so it is not braked to open a virtual gap it does not need yet (coupled at once, a follower
+  virtually 10 m behind a faster predecessor is braked to a standstill by the guard, and a cbf-cbc
+  one held until the gap reaches d).  Without the handshake the driver couples a follower as soon
+  as its predecessor is in the simulation, holding the predecessor's state of that first step as if
+  a message had come.
 * ``speed_profile`` — the follower's command is capped by its braking curve to every lower speed
   limit ahead (turnouts and speed restrictions).  The controllers only see the limit under the
   train, so a follower diverging at a split would otherwise enter the turnout at line speed.
@@ -29,9 +37,9 @@ VC driver).
 
 How the driver uses it (``VCDriver(..., junction=policy)``; one call before and one after its step)::
 
-    snap = policy.visible(snap)                                   # the link handshake
-    commands = ...the driver's step on snap...
-    commands = policy.limit(snap, commands, channel.latest)       # links seen, braking curves
+    shown = policy.visible(snap)                                  # the link handshake
+    commands = ...the driver's step on shown...
+    commands = policy.limit(snap, commands, channel.latest, spacing)   # links seen, braking curves
 
 ``channel.latest(receiver)`` (:meth:`vcsumo.control.channel.Channel.latest`) returns what the
 channel has delivered to a follower so far; ``limit`` runs after the driver's deliveries of the
@@ -44,6 +52,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
+from vcsumo.control.base import Message
 from vcsumo.dynamics import TrainParams, acceleration
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.sim.loop import Snapshot
@@ -60,6 +69,8 @@ class _Member:
     """Guaranteed braking of the absolute rule (braking curves)."""
     emergency: RouteBraking
     """Guaranteed emergency braking (can it still stop before its end of authority?)."""
+    joins_at_merge: bool
+    """Its route does not start on its predecessor's: it joins it at a merge."""
     cannot_stop: bool = False
 
 
@@ -97,7 +108,7 @@ class JunctionPolicy:
                 ego = members[k]
                 self._members[ego.id] = _Member(ego, members[k - 1].id, ego.stock.params(), ego.profile.restriction_targets(),
                                                 RouteBraking(self.model, ego.stock, ego.profile),
-                                                RouteBraking(self.model, ego.stock, ego.profile, "emergency"))
+                                                RouteBraking(self.model, ego.stock, ego.profile, "emergency"), ego.edges[0] not in members[k - 1].edges)
 
     def visible(self, snap: Snapshot) -> Snapshot:
         """The snapshot the driver may act on: without the followers not linked yet (link handshake)."""
@@ -108,12 +119,23 @@ class JunctionPolicy:
             return snap
         return Snapshot(snap.time_s, snap.step_s, {k: v for k, v in snap.trains.items() if k not in hide}, snap.junction_authority_m)
 
-    def limit(self, snap: Snapshot, commands: dict[str, float], delivered: Callable[[str], Mapping[str, object]]) -> dict[str, float]:
-        """Record the links the channel has made (``delivered(follower)``: sender -> latest message)
-        and cap the driver's speed commands (m/s) by the braking curves; returns the commands."""
+    def limit(self, snap: Snapshot, commands: dict[str, float], delivered: Callable[[str], Mapping[str, Message]],
+              spacing: Callable[[str, float], float] | None = None) -> dict[str, float]:
+        """Record the links the channel has made (``delivered(follower)``: sender -> latest message;
+        ``spacing(follower, v)``: the spacing its stack keeps at speed v, m) and cap the driver's speed
+        commands (m/s) by the braking curves; returns the commands.  ``snap`` is the whole snapshot
+        (not the :meth:`visible` one: a follower not linked yet is judged on its own state)."""
         for fid, m in self._members.items():
-            if fid not in self.linked and m.predecessor in delivered(fid):
-                self.linked.add(fid)
+            if fid in self.linked:
+                continue
+            msg = delivered(fid).get(m.predecessor)
+            if msg is None:
+                continue
+            st = snap.trains.get(fid)
+            if m.joins_at_merge and spacing is not None:
+                if st is None or msg.state.position_m - msg.length_m - st.s_m < spacing(fid, st.speed_mps):
+                    continue
+            self.linked.add(fid)
         out = dict(commands)
         dt = self.step_s
         dead = self.model.dead_time_s + 1.5 * dt

@@ -246,16 +246,21 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             caps: dict[str, float] = {}
             obs = {vid: sim.observe(vid) for vid in active}
             others = [(vid, o.edge, o.lane_pos_m, plans[vid].stock.length_m) for vid, o in obs.items()]
-            for vid in active:
-                tr = state[vid]
-                ob = obs[vid]
+            prev_pos = {}
+            for vid in active:  # every route position of this step first: the gap checks below read the train ahead's
+                tr, ob = state[vid], obs[vid]
                 prof = tr.plan.profile
-                prev_s = tr.s
+                prev_pos[vid] = tr.s
                 if not ob.edge.startswith(":") and 0 <= ob.route_index < len(prof.edges) and prof.edges[ob.route_index] == ob.edge:
                     tr.s = float(prof.starts_m[ob.route_index]) + ob.lane_pos_m
                     tr.sync_s, tr.sync_odo = tr.s, ob.odometer_m
                 else:
                     tr.s = tr.sync_s + (ob.odometer_m - tr.sync_odo)
+            for vid in active:
+                tr = state[vid]
+                ob = obs[vid]
+                prof = tr.plan.profile
+                prev_s = prev_pos[vid]
                 if math.isnan(tr.s):
                     continue
                 # tunnel drag: switch the vType when the front passes a portal
@@ -273,15 +278,17 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if lead is None and len(others) > 1:
                     lead = sim.route_leader(vid, others, scn.lookahead_m)
                 gap = lead[1] if lead else math.inf
-                if lead is not None and locking is not None and lead[0] in state:
-                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
-                    if g is not None:
-                        gap = g
-                tr.min_gap = min(tr.min_gap, gap)
                 controlled = tr.controlled and scn.driver is not None
                 if scn.driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
                     # before the driver's first decision a follower behind its own predecessor counts as coupled
                     controlled = scn.driver.predecessor_of(vid) == lead[0]
+                if lead is not None and locking is not None and lead[0] in state and not controlled:
+                    # absolute braking stops short of the fouling point; relative braking keeps to SUMO's gap to
+                    # the rear projected onto this route (the leader's body clears the junction as that rear moves on)
+                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
+                    if g is not None:
+                        gap = g
+                tr.min_gap = min(tr.min_gap, gap)
                 perm = None
                 if supervisor is not None:
                     supervisor.observe(vid, t, ob.odometer_m)

@@ -311,6 +311,7 @@ class VCDriver:
 
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
+        whole = snap
         if self.junction is not None:
             snap = self.junction.visible(snap)
         self._send(snap)
@@ -424,8 +425,14 @@ class VCDriver:
                     "speed_nominal_mps": v_nominal, "speed_guard_mps": v_guard, "speed_command_mps": v_next,
                 })
         if self.junction is not None:
-            commands = self.junction.limit(snap, commands, self.channel.latest)
+            commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands
+
+    def coupled_spacing_m(self, train_id: str, v_mps: float) -> float:
+        """The spacing a follower's stack keeps behind its predecessor at a common speed v: its
+        controller's coupled gap, at least its minimum safe gap (with a CBF: the safety distance d), m."""
+        f = self.followers[train_id]
+        return max(f.stack.coupled_gap_m(v_mps), f.d_min)
 
     # -----------------------------------------------------------------------------------
     def predecessor_of(self, train_id: str) -> str | None:
