@@ -90,3 +90,20 @@ def test_the_junction_is_released_behind_the_train_ahead(hill):
     assert lock2.authority_distance("branch", s_b) < 400.0
     lock2.arrived(["main"])
     assert math.isinf(lock2.authority_distance("branch", s_b))
+
+
+def test_under_fixed_blocks_the_train_waits_at_the_signal_whose_overlap_ends_before_the_junction(hill):
+    """The network's merge signal stands at the junction node: its overlap would run into the
+    junction the other train occupies, so under FBS the branch train's authority ends at the signal
+    before (less its position error), as the supervision's FBS rule gives behind a rear standing at
+    the junction — no end of authority that jumps back when that train's body fouls the junction."""
+    setup, net, trains, braking = hill
+    a = MODEL.assumptions
+    signals = {t.id: t.profile.signal_positions(net.topology) for t in trains}
+    lock = MergeLocking(MODEL, net.topology, trains, braking, {setup.merge_node: ["main", "branch"]}, signals=signals)
+    s_b = _at(setup, "branch", 4000.0)
+    lock.update({"branch": (s_b, 27.0), "main": (_at(setup, "main", 9000.0), 44.4)})
+    junction = setup.s_merge["branch"]
+    before = max(x for x in signals["branch"] if x <= junction - a.overlap_m - a.position_error_m)
+    assert junction - before > a.overlap_m  # the signal before the junction's, not the junction's own
+    assert lock.authority_distance("branch", s_b) == pytest.approx(before - s_b - a.position_error_m)

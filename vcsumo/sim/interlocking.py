@@ -16,12 +16,15 @@ another one from a different track then
 
 * is held by SUMO: vcsumo adds a rail-signal constraint (``predecessor``: it may pass the junction
   signal only after the other train has), so SUMO never sets its route first;
-* has its movement authority end at the junction (less the margin and the position errors, as
-  behind any rear: the other train's rear may stand at the fouling point) until the other
-  train's rear has cleared the junction far enough for the regime's own authority behind that rear
-  to reach past the junction (overlap or margin, position errors, and the age of a report) — so
-  the supervision brakes it there on its guaranteed braking curve, in time, and the hand-over to
-  the authority behind the train ahead is seamless.
+* has its movement authority end as behind a rear standing at the junction (the fouling point,
+  where the other train's rear may stand) under the regime's own rule — MB and VC: the margin and
+  the position errors before it; FBS: the last signal whose overlap ends before it (the rail signal
+  of the SUMO network stands at the junction node, so the overlap beyond the merge signal would run
+  into the junction: the train waits at the signal before) — until the other train's rear has
+  cleared the junction far enough for the regime's own authority behind that rear to reach past
+  the junction (overlap or margin, position errors, and the age of a report).  So the supervision
+  brakes it there on its guaranteed braking curve, in time, and the hand-over to the authority
+  behind the train ahead (also while that train's body still fouls the junction) is seamless.
 
 A virtually coupled follower (driven by vcsumo, not by SUMO) gets the same end of authority from
 :meth:`MergeLocking.authority_distance` (the loop hands it to the driver in its ``Snapshot``), with
@@ -33,6 +36,7 @@ keeps the follower behind the predecessor's rear, which then clears the junction
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass, field
 
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
@@ -76,8 +80,10 @@ class MergeLocking:
     """Orders trains at merging junctions and gives the ones that must wait their end of authority."""
 
     def __init__(self, model: SeparationModel, topo: Topology, trains: list[PlannedTrain], braking: dict[str, RouteBraking],
-                 fixed_orders: dict[str, list[str]] | None = None, lock_time_s: float = LOCK_TIME_S):
+                 fixed_orders: dict[str, list[str]] | None = None, lock_time_s: float = LOCK_TIME_S, signals: dict[str, list[float]] | None = None):
         self.model = model
+        self.signals = {tid: sorted(x) for tid, x in (signals or {}).items()}
+        """FBS: route positions of every train's signals (the end of authority at a junction is one of them)."""
         self.lock_time_s = lock_time_s
         self.braking = braking
         self.plans = {t.id: t for t in trains}
@@ -191,11 +197,23 @@ class MergeLocking:
                     continue
                 if x == coupled_to and self.s_m.get(x, -math.inf) >= self.position[(ap.node, x)]:
                     continue
-                # the train ahead may stand with its rear at the fouling point: the same margin and
-                # position errors as behind any rear
-                best = min(best, ap.s_m - s_m - self.model.margin_m)
+                best = min(best, self.behind_rear(tid, s_m, ap.s_m))  # the train ahead may stand with its rear at the fouling point
                 break
         return best
+
+    def behind_rear(self, tid: str, s_m: float, rear_m: float) -> float:
+        """Distance to the end of authority behind a rear standing at route position ``rear_m``, m:
+        FBS — the last signal whose overlap (+ the position error of the rear) ends before it, less the
+        train's own position error (as the supervision's FBS rule); otherwise margin and position errors."""
+        sig = self.signals.get(tid)
+        if sig is None:
+            return rear_m - s_m - self.model.margin_m
+        a = self.model.assumptions
+        clear = rear_m - a.overlap_m - a.position_error_m
+        k = bisect_right(sig, clear) - 1
+        if k < 0 or sig[k] < s_m - 2 * a.position_error_m - 1.0:  # no signal between: on sight behind it
+            return clear - s_m - a.position_error_m
+        return sig[k] - s_m - a.position_error_m
 
     def fouling_gap(self, tid: str, s_m: float, leader: str, leader_s_m: float) -> float | None:
         """While a train crossing into this train's route at a merge still has its rear on the other
