@@ -210,9 +210,7 @@ class VCDriver:
                  plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None,
                  junction: JunctionPolicy | None = None):
         self.name, self.params_spec = parse_controller(controller)
-        self.junction = junction
-        """Junction behaviour of the followers (link handshake, braking curves to lower limits and to
-        the end of authority at merges): :class:`~vcsumo.sim.junction_policy.JunctionPolicy`, or None."""
+        self.junction = junction  # link handshake, braking curves to lower limits and to the end of authority at merges
         self.assumptions = assumptions or load_assumptions()
         self.model = SeparationModel(self.assumptions)
         self.step_s = step_s
@@ -311,9 +309,7 @@ class VCDriver:
 
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
-        whole = snap
-        if self.junction is not None:
-            snap = self.junction.visible(snap)
+        whole, snap = snap, (self.junction.visible(snap) if self.junction is not None else snap)
         self._send(snap)
         t = snap.time_s
         commands: dict[str, float] = {}
