@@ -107,3 +107,20 @@ def test_under_fixed_blocks_the_train_waits_at_the_signal_whose_overlap_ends_bef
     before = max(x for x in signals["branch"] if x <= junction - a.overlap_m - a.position_error_m)
     assert junction - before > a.overlap_m  # the signal before the junction's, not the junction's own
     assert lock.authority_distance("branch", s_b) == pytest.approx(before - s_b - a.position_error_m)
+
+
+def test_a_convoy_follower_never_locks_a_junction_before_its_predecessor(hill):
+    """First come, first served would give the junction to the main-line train that comes first; as
+    the branch train's convoy follower it waits for it (else each would wait for the other: the
+    leader held at the signal, the follower held behind its leader by its guard)."""
+    setup, net, trains, braking = hill
+    lock = MergeLocking(MODEL, net.topology, trains, braking, convoys={"main": "branch"})
+    s_m = _at(setup, "main", 2000.0)
+    new = lock.update({"main": (s_m, 44.4)})  # the leader is not in the simulation yet
+    assert new == [(setup.merge_node, "main", "branch")] and lock.junctions[setup.merge_node].order == ["main"]
+    assert lock.authority_distance("main", s_m) == pytest.approx(2000.0 - MODEL.margin_m)
+    lock.update({"main": (s_m, 44.4), "branch": (_at(setup, "branch", 500.0), 16.7)})
+    assert lock.junctions[setup.merge_node].order == ["branch", "main"]
+    assert math.isinf(lock.authority_distance("branch", _at(setup, "branch", 500.0)))
+    lock.update({"main": (s_m, 44.4), "branch": (_at(setup, "branch", -1.0), 16.7)})  # its front is past: the coupled follower may go on
+    assert math.isinf(lock.authority_distance("main", s_m, coupled_to="branch"))

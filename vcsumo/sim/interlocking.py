@@ -11,7 +11,9 @@ join) by the moment each one *locks* the junction: when it comes within its guar
 distance of the junction plus ``lock_time_s`` of running (and at the latest when it cannot stop
 before it).  The order is first come, first served, unless a scenario fixes it
 (``Scenario.merge_orders``: then a train waits for every train the fixed order puts before it that
-has not cleared the junction yet, whether or not that train has locked it).  Every train behind
+has not cleared the junction yet, whether or not that train has locked it) — and a convoy
+follower never goes before its predecessor (``convoys``: first come, first served would let a fast
+follower lock the junction first, and its leader and it would wait for each other).  Every train behind
 another one from a different track then
 
 * is held by SUMO: vcsumo adds a rail-signal constraint (``predecessor``: it may pass the junction
@@ -61,8 +63,9 @@ class _Junction:
     node: str
     order: list[str] = field(default_factory=list)
     """Trains that locked the junction, first first (removed once their rear has cleared it)."""
-    fixed: list[str] = field(default_factory=list)
-    """An order the scenario imposes (e.g. the junction study's main/branch first)."""
+    first: dict[str, set[str]] = field(default_factory=dict)
+    """Train -> the trains that must pass before it whenever they come (the order a scenario fixes,
+    e.g. the junction study's; a convoy follower's predecessors), transitively closed."""
     cleared: set[str] = field(default_factory=set)
     """Trains whose rear has cleared the junction (or that left the network)."""
 
@@ -80,7 +83,8 @@ class MergeLocking:
     """Orders trains at merging junctions and gives the ones that must wait their end of authority."""
 
     def __init__(self, model: SeparationModel, topo: Topology, trains: list[PlannedTrain], braking: dict[str, RouteBraking],
-                 fixed_orders: dict[str, list[str]] | None = None, lock_time_s: float = LOCK_TIME_S, signals: dict[str, list[float]] | None = None):
+                 fixed_orders: dict[str, list[str]] | None = None, lock_time_s: float = LOCK_TIME_S, signals: dict[str, list[float]] | None = None,
+                 convoys: dict[str, str] | None = None):
         self.model = model
         self.signals = {tid: sorted(x) for tid, x in (signals or {}).items()}
         """FBS: route positions of every train's signals (the end of authority at a junction is one of them)."""
@@ -104,7 +108,22 @@ class MergeLocking:
         self.position: dict[tuple[str, str], float] = {(a.node, tid): a.s_m for tid, aps in self.approaches.items() for a in aps}
         for node, order in (fixed_orders or {}).items():
             if node in self.junctions:  # only the trains that pass the junction
-                self.junctions[node].fixed = [tid for tid in order if (node, tid) in self.track_of]
+                fixed = [tid for tid in order if (node, tid) in self.track_of]
+                for k, tid in enumerate(fixed):
+                    self.junctions[node].first.setdefault(tid, set()).update(fixed[:k])
+        for tid, pred in (convoys or {}).items():  # a follower never passes a junction before its predecessor
+            for ap in self.approaches.get(tid, ()):
+                if (ap.node, pred) in self.track_of:
+                    self.junctions[ap.node].first.setdefault(tid, set()).add(pred)
+        for j in self.junctions.values():  # transitively: behind a follower's predecessor's predecessor too
+            changed = True
+            while changed:
+                changed = False
+                for tid, firsts in j.first.items():
+                    more = set().union(*(j.first.get(x, set()) for x in firsts)) - firsts - {tid}
+                    if more:
+                        firsts |= more
+                        changed = True
         self.s_m: dict[str, float] = {}
         """Latest route position of every running train's front, m."""
 
@@ -119,7 +138,7 @@ class MergeLocking:
                 j = self.junctions[ap.node]
                 if tid in j.order or tid in j.cleared:
                     continue
-                if j.fixed and tid in j.fixed:
+                if tid in j.first:
                     self._constrain(j, tid, new)  # a fixed order holds from the start: SUMO never sets the route first
                 d = ap.s_m - s_m
                 stop = self.braking[tid].stopping_distance(s_m, v, a.dead_time_s)
@@ -152,22 +171,17 @@ class MergeLocking:
                     self.junctions[ap.node].cleared.add(tid)
 
     def _lock(self, j: _Junction, tid: str, new: list) -> None:
-        if j.fixed and tid in j.fixed:  # in front of the trains the fixed order puts after it
-            later = set(j.fixed[j.fixed.index(tid) + 1:])
-            k = next((i for i, x in enumerate(j.order) if x in later), len(j.order))
-            j.order.insert(k, tid)
-        else:
-            j.order.append(tid)
+        # in front of the trains that must pass after it, else last
+        k = next((i for i, x in enumerate(j.order) if tid in j.first.get(x, ())), len(j.order))
+        j.order.insert(k, tid)
         self._constrain(j, tid, new)
 
     def ahead(self, node: str, tid: str) -> list[str]:
         """Trains that pass junction ``node`` before ``tid`` and have not cleared it yet."""
         j = self.junctions[node]
         before = j.order[: j.order.index(tid)] if tid in j.order else list(j.order)  # not locked yet: every train that has locked it goes first
-        if j.fixed and tid in j.fixed:
-            k = j.fixed.index(tid)
-            before = [x for x in before if x not in j.fixed[k + 1:]]
-            before += [x for x in j.fixed[:k] if x not in j.cleared and x not in before]
+        before = [x for x in before if tid not in j.first.get(x, ())]  # never one that must pass after it
+        before += [x for x in sorted(j.first.get(tid, ())) if x not in j.cleared and x not in before]
         return before
 
     def _constrain(self, j: _Junction, tid: str, new: list) -> None:

@@ -214,7 +214,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     supervisor = locking = None
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
-        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals)
+        convoys = {t.id: scn.driver.predecessor_of(t.id) for t in scn.trains} if scn.driver is not None else {}
+        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
         supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
