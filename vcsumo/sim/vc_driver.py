@@ -68,6 +68,7 @@ from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError
 from vcsumo.running_time import unhindered_run
+from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
 from vcsumo.timetable import PlannedTrain, TimetableFile
 
@@ -206,8 +207,10 @@ class VCDriver:
 
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
                  cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
-                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None):
+                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None,
+                 junction: JunctionPolicy | None = None):
         self.name, self.params_spec = parse_controller(controller)
+        self.junction = junction  # link handshake, braking curves to lower limits and to the end of authority at merges
         self.assumptions = assumptions or load_assumptions()
         self.model = SeparationModel(self.assumptions)
         self.step_s = step_s
@@ -306,6 +309,7 @@ class VCDriver:
 
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
+        whole, snap = snap, (self.junction.visible(snap) if self.junction is not None else snap)
         self._send(snap)
         t = snap.time_s
         commands: dict[str, float] = {}
@@ -416,7 +420,15 @@ class VCDriver:
                     "barrier_true_m": cmd.info.get("cbf_true_barrier_m"), "barrier_robust_m": cmd.info.get("cbf_robust_barrier_m"),
                     "speed_nominal_mps": v_nominal, "speed_guard_mps": v_guard, "speed_command_mps": v_next,
                 })
+        if self.junction is not None:
+            commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands
+
+    def coupled_spacing_m(self, train_id: str, v_mps: float) -> float:
+        """The spacing a follower's stack keeps behind its predecessor at a common speed v: its
+        controller's coupled gap, at least its minimum safe gap (with a CBF: the safety distance d), m."""
+        f = self.followers[train_id]
+        return max(f.stack.coupled_gap_m(v_mps), f.d_min)
 
     # -----------------------------------------------------------------------------------
     def predecessor_of(self, train_id: str) -> str | None:
