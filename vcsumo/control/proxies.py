@@ -43,13 +43,15 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from vcsumo.dynamics import TrainParams, V_EPS_MPS
 from vcsumo.rolling_stock import RollingStock, UncertaintyBox
 from vcsumo.route_profile import RouteProfile
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.separation import brake_range
 from vcsumo.units import G
 
 """Speed below which power limits are evaluated at this speed (as :mod:`vcsumo.dynamics`), m/s."""
@@ -91,6 +93,12 @@ class BoxBounds:
     """First-order force lag τ (eq. 1c of Felez), s; 0 in Terlizzi's model."""
     max_jerk_mps3: float = math.inf
     """Jerk limit (eq. 4c of Felez), m/s³; none in Terlizzi's model."""
+    emergency_decel_low_mps2: float = math.nan
+    """Emergency-brake deceleration (brake force per mass) the train is sure of: the bottom of the
+    separation model's emergency range (:func:`vcsumo.signalling.separation.brake_range`), m/s²;
+    NaN when the bounds were built without a rolling stock (the paper's model has no emergency brake)."""
+    emergency_decel_high_mps2: float = math.nan
+    """The top of that range: the hardest emergency braking the train may show, m/s²."""
 
     def actuation_delay_s(self, force_n: float | None = None) -> float:
         """Dead time bounding the force lag and jerk limit from ``force_n`` to the full brake, s.
@@ -141,8 +149,18 @@ class BoxBounds:
         )
 
     @classmethod
-    def from_stock(cls, stock: RollingStock) -> "BoxBounds":
-        return cls.from_box(stock.uncertainty_box(), stock.params())
+    def from_stock(cls, stock: RollingStock, assumptions: AssumptionSet | None = None) -> "BoxBounds":
+        """Bounds of a rolling stock's box, with its emergency-brake range under ``assumptions``
+        (the separation model's set; None: the shipped default)."""
+        low, high = brake_range(stock, assumptions or load_assumptions(), "emergency")
+        return replace(cls.from_box(stock.uncertainty_box(), stock.params()), emergency_decel_low_mps2=low, emergency_decel_high_mps2=high)
+
+    def with_emergency_leader(self) -> "BoxBounds":
+        """These bounds with the strongest braking of a leader at the top of its emergency range
+        (``leader_braking: emergency`` of the CBF): ā_br ← the emergency top."""
+        if not math.isfinite(self.emergency_decel_high_mps2):
+            raise ValueError("leader_braking 'emergency' needs the leader's emergency range (BoxBounds.from_stock)")
+        return replace(self, brake_decel_high_mps2=max(self.brake_decel_high_mps2, self.emergency_decel_high_mps2))
 
     def contains(self, p: TrainParams, tol: float = 1e-9) -> bool:
         """True when the parameter vector p lies in the box (eq. 7)."""
