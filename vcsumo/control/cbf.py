@@ -148,6 +148,7 @@ class CBFSupervisor:
         self._commands: deque[tuple[float, float]] = deque()
         fb = self.follower_bounds
         self._command_horizon_s = 5.0 * fb.traction_lag_s + fb.actuation_delay_s() + 1.0
+        self._traction_cap_n = fb.mass_high_kg * fb.accel_high_mps2
 
     @classmethod
     def from_files(cls, leader: str | Path, follower: str | Path, config: str | Path | None = None, leader_id: str | None = None) -> "CBFSupervisor":
@@ -275,7 +276,8 @@ class CBFSupervisor:
         # the applied force lies between the present one and the command)
         actuated = model.follower_delay_full_s > 0 or cfg.actuation_delay_s is not None
         f_now = self._applied_force_bound(t, obs.ego.force_n) if actuated else None
-        u_pred = nominal.force_n if not actuated else max(nominal.force_n, f_now)
+        u_cmd = min(nominal.force_n, self._traction_cap_n)  # no train in the box applies more traction
+        u_pred = u_cmd if not actuated else max(u_cmd, f_now)
         f_next = None if not actuated else u_pred
         v_f1 = max(0.0, v_f + model.follower.rup_step_accel(s_f, v_f, u_pred, dt) * dt)
         s_f1 = s_f + max(v_f, v_f1) * dt
@@ -315,7 +317,8 @@ class CBFSupervisor:
         dt_m = dt if cfg.sampled_data_margin else 0.0
         actuated = model.follower_delay_full_s > 0
         f_now = self._applied_force_bound(t, obs.ego.force_n) if actuated else None
-        u_pred = nominal.force_n if not actuated else max(nominal.force_n, f_now)
+        u_cmd = min(nominal.force_n, self._traction_cap_n)  # no train in the box applies more traction
+        u_pred = u_cmd if not actuated else max(u_cmd, f_now)
         b_now = min(model.value(s_l, v_l, s_f, v_f, f_now, dt_m)[0] for s_l, v_l in pred.states(t))
         b_chk = b_now
         if cfg.lookahead:  # the follower's RUP (eq. 13) after one step of the nominal command
@@ -344,7 +347,7 @@ class CBFSupervisor:
         if self.cfg.trust_reported_force:
             return reported_n
         recent = max((f for _, f in self._commands), default=reported_n)
-        return max(reported_n, recent)
+        return min(max(reported_n, recent), max(reported_n, self._traction_cap_n))
 
     def _emergency(self, obs: Observation, nominal: Command, b_now: float, b_true: float, reason: str, age: float) -> Command:
         if not self._in_emergency:
