@@ -385,7 +385,12 @@ class CBFSupervisor:
         h = self.history
         return pd.DataFrame({"time_s": h.time_s, "robust_barrier_m": h.robust_barrier_m, "true_barrier_m": h.true_barrier_m, "emergency": h.emergency, "reason": h.reason, "info_age_s": h.info_age_s})
 
-    def true_barrier(self, profile: RouteProfile | None, s_leader_m: float, v_leader_mps: float, s_follower_m: float, v_follower_mps: float) -> float:
-        """b(x) of eq. 15 on given (true) states, continuous-time form (for analysis)."""
-        return self.model_for(profile).value(s_leader_m, v_leader_mps, s_follower_m, v_follower_mps)[0]
-
+    def true_barrier(self, profile: RouteProfile | None, s_leader_m: float, v_leader_mps: float, s_follower_m: float, v_follower_mps: float,
+                     force_n: float | None = None) -> float:
+        """The barrier on given (true) states, continuous-time form, the follower applying ``force_n``
+        (None: full traction) — what Theorem VI.1 keeps ≤ 0 (for analysis and the safety campaign)."""
+        m = self.model_for(profile)
+        if isinstance(m, SeparationBarrier):
+            return m.value(s_leader_m, v_leader_mps, s_follower_m, v_follower_mps, force_n)[0]
+        return barrier_from_stops(s_leader_m, m.leader_stop(s_leader_m, v_leader_mps), s_follower_m, m.follower_stop(s_follower_m, v_follower_mps, 0.0, force_n),
+                                  m.leader_length_m, m.d_m)[0]
