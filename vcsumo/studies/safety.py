@@ -306,7 +306,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
                      known_at_start=True, record_every=0, stop_when=watch)
     supervised = sups[0] is not None
     return {
-        **_spec_columns(spec, prof), "loop": "offline", "controller": controller, "supervised": supervised, "initial_gap_m": min(gaps0),
+        **spec_columns(spec, prof), "loop": "offline", "controller": controller, "supervised": supervised, "initial_gap_m": min(gaps0),
         "min_gap_m": watch.min_gap, "min_margin_m": min(w.min_margin_m for w in watch.watch),
         "separation_violations": sum(w.violations for w in watch.watch), "below_separation_time_s": sum(w.below_s for w in watch.watch),
         "collisions": sum(w.collisions for w in watch.watch), "max_impact_kmh": max(w.max_impact_kmh for w in watch.watch),
@@ -317,7 +317,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     }
 
 
-def _spec_columns(spec: ScenarioSpec, prof: RouteProfile) -> dict:
+def spec_columns(spec: ScenarioSpec, prof: RouteProfile) -> dict:
     return {
         "scenario": spec.id, "line": spec.line, "direction": spec.direction, "kind": spec.kind, "followers": spec.followers,
         "leader_stock": spec.stocks[0], "follower_stocks": "+".join(spec.stocks[1:]), "km_start": round(prof.km_at(spec.leader_start_m)[1], 3),
