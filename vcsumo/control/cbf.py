@@ -220,7 +220,7 @@ class CBFSupervisor:
         model = self._model
         pred = self._predictor
         model.new_step()
-        t, dt = obs.time_s, obs.step_s
+        t = obs.time_s
         msg = self._leader_message(obs)
         pred.update(msg)
         s_f, v_f = obs.ego.position_m, max(0.0, obs.ego.speed_mps)

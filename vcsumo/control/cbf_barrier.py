@@ -26,7 +26,6 @@ Two forms, chosen by :class:`CBFConfig` (``distance``, ``leader_braking``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 

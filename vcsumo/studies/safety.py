@@ -53,21 +53,20 @@ from vcsumo.control.base import Command, Observation
 from vcsumo.control.channel import Channel, ChannelConfig, Window
 from vcsumo.control.params import resolve_params
 from vcsumo.control.registry import check_controller
-from vcsumo.control.stack import FollowerStack, SampledController  # noqa: F401 - SampledController re-exported
+from vcsumo.control.stack import SampledController  # noqa: F401 - SampledController re-exported
 from vcsumo.dynamics import TrainParams
 from vcsumo.engine.campaign import Outcome, Runner, Task, run_campaign
 from vcsumo.engine.store import ResultStore, Table, read_table
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.plant import PlantState
-from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import unhindered_run
 from vcsumo.signalling.separation import RelativeBraking, SeparationModel
 from vcsumo.sim.health import GAP_TOLERANCE_M
-from vcsumo.sim.offline import Odometry, OfflineTrain, follower_stacks, run_convoy, steady_force, tracking_force
+from vcsumo.sim.offline import Odometry, OfflineTrain, run_convoy, steady_force, tracking_force
 from vcsumo.studies.safety_scenarios import (  # noqa: F401 - the campaign's scenarios are part of this module's interface
-    KINDS, SAFETY_CONTROLLERS, Junction, LineRoute, SafetyCampaign, ScenarioSpec, campaign_assumptions, capped_profile, draw_scenario, line_route, stock,
-    true_params,
+    KINDS, SAFETY_CONTROLLERS, Junction, LineRoute, SafetyCampaign, ScenarioSpec, campaign_assumptions, capped_profile, draw_scenario, follower_stacks_for,
+    initial_gaps, line_route, spec_columns, stock, true_params,
 )
 
 SAFETY_COLUMNS = [
@@ -79,24 +78,6 @@ SAFETY_COLUMNS = [
 """``safety.csv``: min_margin_m is the smallest (true gap − safe separation of the run-health
 monitor's rule), m; separation_violations its episodes below −1 cm; the barrier columns are NaN
 for unsupervised controllers."""
-
-
-# -------------------------------------------------------------------------------------------
-# Controllers: the registry's stacks, as in the SUMO loop
-
-_REUSE: dict = {}
-"""Expensive controller parts kept between scenarios in one process (the NMPC's route DP), see
-:class:`~vcsumo.control.registry.StackContext`."""
-
-
-def follower_stacks_for(controller: str, route: LineRoute, ids: list[str], cfg: SafetyCampaign, stocks: list[RollingStock] | None = None) -> list[FollowerStack]:
-    """Every follower's stack, built by the registry exactly as the SUMO loop builds it (nominal
-    controller → CBF supervisor for ``cbf-`` names → separation guard → fault stage), with the
-    campaign's ATO cycle (``control_period_s``), odometry error bound and assumption set;
-    ``stocks`` the convoy's trains, leader first (default: the line's train)."""
-    return follower_stacks(controller, stocks or [route.stock] * len(ids), ids, cfg.step_s, route.profile, supervisor_params=cfg.cbf_config,
-                           control_period_s=cfg.control_period_s, position_error_m=cfg.position_error_max_m, record=False, reuse=_REUSE,
-                           assumptions=campaign_assumptions(cfg.assumptions))
 
 
 def barrier_gap_m(sup, profile: RouteProfile, s_m: float, v_mps: float, length_m: float) -> float:
@@ -225,46 +206,6 @@ class _Watch:
         return False
 
 
-def initial_gaps(spec: ScenarioSpec, stacks: list[FollowerStack], stocks: list[RollingStock], rules: list[RelativeBraking], model: SeparationModel,
-                 profile: RouteProfile) -> tuple[list[float], list[float], list[float]]:
-    """(positions, speeds, gaps) of the convoy at t = 0: the kind's spacing, never inside any
-    follower's safe separation (the monitor's rule, and the CBF's barrier for ``cbf-`` stacks, each
-    + 1 % + 2 m: the true train's force and mass differ a little from the nominal ones the gap is computed with)."""
-    n = spec.followers + 1
-    v_l0 = spec.leader_speed_mps
-    speeds = [v_l0, spec.follower_speed_mps] + [v_l0] * (n - 2) if spec.kind != "merge" else [v_l0] + [spec.follower_speed_mps] * (n - 1)
-    positions = [spec.leader_start_m]
-    gaps = []
-    for k in range(1, n):
-        st, f, v, v_p, s_p = stocks[k], stacks[k - 1], speeds[k], speeds[k - 1], positions[-1]
-        L_p = stocks[k - 1].length_m
-
-        def safe(g: float) -> float:  # the safe separation at that gap, + 1 % + 2 m
-            s_f = s_p - L_p - g
-            need = rules[k - 1].required_gap(s_f, v, s_p, v_p, model.dead_time_s)
-            if f.supervisor is not None:
-                need = max(need, f.supervisor.required_gap_m(profile, s_p, v_p, s_f, v, steady_force(st.params(), v, profile, s_f)))
-            return 1.01 * need + 2.0
-
-        own = max(f.coupled_gap_m(max(v, v_p)), f.d_min_m + 1.0)
-        if spec.kind == "merge" and k == 1:
-            # admitted by the interlocking: absolute braking distance at the nominal service brake + the minimum safe gap
-            g = spec.spacing_factor * (v * v / (2.0 * st.service_brake_decel_mps2) + f.d_min_m + 1.0)
-            g = max(g, s_p - L_p - spec.junction_s_m + 1.0)  # the follower is at or before the turnout
-        elif spec.kind in ("cruise", "split") or k == 1:
-            g = spec.spacing_factor * own
-        else:
-            g = 1.05 * own
-        for _ in range(3):  # the safe separation depends a little on where the follower is
-            g = max(g, safe(g))
-        gaps.append(g)
-        positions.append(s_p - L_p - g)
-    shift = stocks[-1].length_m + 10.0 - positions[-1]
-    if shift > 0:
-        positions = [x + shift for x in positions]
-    return positions, speeds, gaps
-
-
 def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> dict:
     """Run one scenario with one controller in the offline loop; return its row of ``safety.csv``."""
     t_wall = time.perf_counter()
@@ -314,16 +255,6 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
         "initial_true_barrier_m": watch.b_init if supervised else math.nan, "max_true_barrier_m": watch.max_b if supervised else math.nan,
         "time_lost_s": float(np.mean(watch.lost)) if watch.lost else math.nan,  # NaN: the scenario ended before the brake (a split completed first)
         "simulated_s": run.end_time_s, "wall_time_s": time.perf_counter() - t_wall, "error": "",
-    }
-
-
-def spec_columns(spec: ScenarioSpec, prof: RouteProfile) -> dict:
-    return {
-        "scenario": spec.id, "line": spec.line, "direction": spec.direction, "kind": spec.kind, "followers": spec.followers,
-        "leader_stock": spec.stocks[0], "follower_stocks": "+".join(spec.stocks[1:]), "km_start": round(prof.km_at(spec.leader_start_m)[1], 3),
-        "leader_speed_mps": spec.leader_speed_mps, "brake_time_s": spec.brake_time_s, "delay_s": spec.delay_s, "mean_extra_delay_s": spec.mean_extra_delay_s,
-        "loss_probability": spec.loss_probability, "outage_s": 0.0 if spec.outage is None else spec.outage[1] - spec.outage[0],
-        "position_error_m": spec.position_error_m, "corner_trains": int(sum(spec.corners)),
     }
 
 

@@ -44,8 +44,9 @@ from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.separation import RelativeBraking, SeparationModel
 from vcsumo.sim.loop import Scenario, Snapshot, simulate
 from vcsumo.sim.vc_driver import VCDriver
-from vcsumo.studies.safety import follower_stacks_for, initial_gaps, spec_columns
-from vcsumo.studies.safety_scenarios import SafetyCampaign, ScenarioSpec, campaign_assumptions, line_route, stock, true_params
+from vcsumo.studies.safety_scenarios import (
+    SafetyCampaign, ScenarioSpec, campaign_assumptions, follower_stacks_for, initial_gaps, line_route, spec_columns, stock, true_params,
+)
 from vcsumo.timetable import PlannedTrain
 
 
