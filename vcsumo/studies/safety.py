@@ -419,7 +419,7 @@ def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
             "separation_violations": int(ok["separation_violations"].sum()), "collisions": int(ok["collisions"].sum()), "max_impact_kmh": agg("max_impact_kmh", "max"),
             "min_gap_m": agg("min_gap_m", "min"), "min_margin_m": agg("min_margin_m", "min"), "max_true_barrier_m": float(bmax.max()) if n else math.nan,
             # Theorem VI.1: from b(0) ≤ 0, b stays ≤ 0; a run started with b(0) > 0 must not see b rise above b(0)
-            "started_outside_safe_set": int((b0 > 1e-6).sum()), "barrier_breaches": int((bmax > b0.clip(lower=0.0) + 1e-6).sum()),
+            "started_outside_safe_set": int((b0 > 1e-6).sum()), "barrier_breaches": int((bmax > b0.fillna(0.0).clip(lower=0.0) + 1e-6).sum()),
             "emergency_activations_mean": agg("emergency_activations", "mean"), "emergency_time_s_mean": agg("emergency_time_s", "mean"),
             "time_lost_s_mean": agg("time_lost_s", "mean"), "time_lost_s_p95": float(pd.to_numeric(ok["time_lost_s"], errors="coerce").quantile(0.95)) if n else math.nan,
             "wall_time_s_mean": agg("wall_time_s", "mean"),

@@ -138,8 +138,11 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
     fol = res.trains.set_index("train").loc[ids[1:]]
     sups = [vc.followers[i].stack.supervisor for i in ids[1:]]
     supervised = sups[0] is not None
-    b0 = max((s.history.true_barrier_m[0] for s in sups if s is not None and s.history.true_barrier_m), default=math.nan) if supervised else math.nan
+    # the true barrier at the first step the follower saw its predecessor (SUMO reports it from the first step both run)
+    firsts = [next((b for b in s.history.true_barrier_m if math.isfinite(b)), math.nan) for s in sups if s is not None]
+    b0 = max((b for b in firsts if math.isfinite(b)), default=math.nan)
     bmax = max(s.stats.max_true_barrier_m for s in sups) if supervised else math.nan
+    bmax = bmax if math.isfinite(bmax) else math.nan
     margins = fol["min_margin_m"].dropna()
     summ = vc.summary()
     return {
