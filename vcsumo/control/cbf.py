@@ -387,10 +387,15 @@ class CBFSupervisor:
 
     def true_barrier(self, profile: RouteProfile | None, s_leader_m: float, v_leader_mps: float, s_follower_m: float, v_follower_mps: float,
                      force_n: float | None = None) -> float:
-        """The barrier on given (true) states, continuous-time form, the follower applying ``force_n``
-        (None: full traction) — what Theorem VI.1 keeps ≤ 0 (for analysis and the safety campaign)."""
+        """The barrier on given true states, continuous-time form, the follower applying ``force_n``
+        (None: full traction) — what Theorem VI.1 keeps ≤ 0 (for analysis and the safety campaign).
+
+        The supervisor keeps d + 2·e_s between *measured* positions (Felez eq. 9, ``position_error_m``);
+        between true positions the barrier protects d, so the allowance 2·e_s is taken off here."""
         m = self.model_for(profile)
         if isinstance(m, SeparationBarrier):
-            return m.value(s_leader_m, v_leader_mps, s_follower_m, v_follower_mps, force_n)[0]
-        return barrier_from_stops(s_leader_m, m.leader_stop(s_leader_m, v_leader_mps), s_follower_m, m.follower_stop(s_follower_m, v_follower_mps, 0.0, force_n),
-                                  m.leader_length_m, m.d_m)[0]
+            b = m.value(s_leader_m, v_leader_mps, s_follower_m, v_follower_mps, force_n)[0]
+        else:
+            b = barrier_from_stops(s_leader_m, m.leader_stop(s_leader_m, v_leader_mps), s_follower_m, m.follower_stop(s_follower_m, v_follower_mps, 0.0, force_n),
+                                   m.leader_length_m, m.d_m)[0]
+        return b - 2.0 * self.cfg.position_error_m
