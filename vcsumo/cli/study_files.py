@@ -205,9 +205,13 @@ def study_arguments(study, path: Path, out: Path | None) -> list[str]:
                 "--channel-period-s", str(study.channel_period_s), "--loss-max", str(study.loss_max), "--delay-max-s", str(study.delay_max_s),
                 "--mean-extra-max-s", str(study.mean_extra_max_s), "--outage-probability", str(study.outage_probability),
                 "--outage-max-s", str(study.outage_max_s), "--corner-probability", str(study.corner_probability),
-                "--position-error-max-m", str(study.position_error_max_m), "--max-duration-s", str(study.max_duration_s)]
+                "--position-error-max-m", str(study.position_error_max_m), "--max-duration-s", str(study.max_duration_s),
+                "--loop", study.loop, "--rolling-stock", ",".join(_resolve(x, base) for x in study.rolling_stock),
+                "--heterogeneous-probability", str(study.heterogeneous_probability)]
         if study.cbf_config:
             args += ["--cbf", _resolve(study.cbf_config, base)]
+        if study.assumptions:
+            args += ["--assumptions", _resolve(study.assumptions, base)]
         if study.workers:
             args += ["--workers", str(study.workers)]
         return args + (["--out", str(dest)] if dest is not None else [])

@@ -108,7 +108,7 @@ class OS2Spec:
 
 
 def load_configs(cbf_path: str | Path | None = None, cruise_path: str | Path | None = None) -> tuple[CBFConfig, CruiseConfig]:
-    cbf = load_model(CBFConfig, resolve_params(cbf_path, "cbf", "cbf_path"))
+    cbf = load_model(CBFConfig, resolve_params(cbf_path, "cbf_terlizzi2024", "cbf_path"))  # the paper's barrier (fixed d, service-box leader)
     cruise = load_model(CruiseConfig, resolve_params(cruise_path, "cruise_terlizzi2024", "cruise_path"))
     return cbf, cruise
 
