@@ -65,13 +65,15 @@ UNHEALTHY = [("stops_skipped", "scheduled stops skipped"), ("collisions", "colli
 """Counters of a run summary that make it not healthy (:mod:`vcsumo.sim.health`), as words."""
 
 
-def unhealthy_reasons(summary: dict) -> list[str]:
-    """What made a run not healthy, as short phrases (empty: healthy)."""
+def unhealthy_reasons(summary: dict, cut_short: bool = False) -> list[str]:
+    """What made a run not healthy, as short phrases (empty: healthy).  ``cut_short``: the run was
+    stopped at a time the user chose, so trains still running then (not arrived, stops not yet
+    served) are not counted."""
     out = []
-    if summary.get("trains_arrived") != summary.get("trains"):
+    if summary.get("trains_arrived") != summary.get("trains") and not cut_short:
         out.append(f"{summary.get('trains_arrived')} of {summary.get('trains')} trains arrived")
-    out += [f"{summary[k]} {words}" for k, words in UNHEALTHY if summary.get(k)]
-    return out if out or summary.get("healthy", True) else ["not healthy (see summary.json)"]
+    out += [f"{summary[k]} {words}" for k, words in UNHEALTHY if summary.get(k) and not (cut_short and k == "stops_skipped")]
+    return out if out or cut_short or summary.get("healthy", True) else ["not healthy (see summary.json)"]
 
 
 def run(cfg: RunConfig) -> None:
@@ -122,7 +124,7 @@ def run(cfg: RunConfig) -> None:
     out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {gap_text}, "
                       f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
     out_console.print(f"wrote {out}")
-    reasons = unhealthy_reasons(s)
+    reasons = unhealthy_reasons(s, cut_short=cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s)
     if reasons:
         until = f" (simulated until {format_clock(s['simulated_until_s'])})" if s.get("simulated_until_s") else ""
         raise NotClean(f"the run is not healthy: {', '.join(reasons)}{until}; results in {out}")
@@ -132,8 +134,9 @@ def run(cfg: RunConfig) -> None:
 def run_cmd(cfg: RunConfig) -> None:
     """Run a timetable on a line under one regime; write trajectories, stop events and a summary.
 
-    Exits 1 (results kept) when the run is not healthy: a train did not arrive or skipped a stop,
-    a collision, a gap below the safe separation, overspeed, an overrun of the movement authority.
+    Exits 1 (results kept) when the run is not healthy: a train did not arrive or skipped a stop
+    (not counted for trains still running at --end-time), a collision, a gap below the safe
+    separation, overspeed, an overrun of the movement authority.
     """
     run(cfg)
 

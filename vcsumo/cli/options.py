@@ -71,7 +71,7 @@ def default_text(info: FieldInfo) -> str | None:
     else:
         value = info.default
     if isinstance(value, list):
-        return ",".join(map(str, value)) if value else "''"
+        return ",".join(map(str, value)) if value else None
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
@@ -87,8 +87,9 @@ def field_option(model: type[CommandConfig], name: str, info: FieldInfo) -> clic
     multiple = bool(_extra(info).get("multiple"))
     if multiple:
         help_text += " (repeat the option or separate by commas)"
-    return click.Option([opt, name], type=str, default=None, multiple=multiple, metavar=_metavar(info), help=help_text,
-                        show_default=shown if shown is not None else False)
+    if shown is not None:
+        help_text += f"  [default: {shown}]"
+    return click.Option([opt, name], type=str, default=None, multiple=multiple, metavar=_metavar(info), help=help_text)
 
 
 def option_values(model: type[CommandConfig], raw: dict[str, Any]) -> dict[str, Any]:
