@@ -287,3 +287,22 @@ def test_a_run_writes_valid_json_and_clean_numbers(in_tmp, capsys):
         cells = [c for row in (in_tmp / "r" / name).read_text().splitlines()[1:] for c in row.split(",")]
         floats = [c for c in cells if re.fullmatch(r"-?\d+\.\d+", c)]
         assert floats and all(len(c.lstrip("-").replace(".", "").lstrip("0")) <= 12 for c in floats), name
+
+
+def test_vc_summary_is_valid_json_when_followers_never_coupled_or_released(in_tmp, capsys):
+    """Cut at 25 s the convoy's followers have not coupled (nor been released): their times are null, not NaN."""
+    assert main(["run", "--line", "felez_test", "--timetable", "convoy", "--regime", "vc", "--controller", "cbc", "--end-time", "25", "--out", "r"]) == 0
+    followers = _strict_json((in_tmp / "r" / "vc_summary.json").read_text())["followers"]
+    assert any(f["released_at_s"] is None for f in followers)
+    _strict_json((in_tmp / "r" / "summary.json").read_text())
+
+
+def test_junction_and_safety_study_files_fill_their_commands_parameters(root):
+    """Not yet generated from one model: their file models hand values to the commands by name."""
+    from vcsumo.cli.junction import junction_cmd
+    from vcsumo.cli.safety import safety_cmd
+    from vcsumo.cli.study_files import load_study
+
+    for name, cmd in (("junction_milano_bologna", junction_cmd), ("safety", safety_cmd)):
+        values = load_study(root / "vcsumo" / "data" / "studies" / f"{name}.yaml").command_values()
+        assert set(values) <= {p.name for p in cmd.params}, name

@@ -312,8 +312,8 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             plat = next(p for p in topo.platforms_of(svc.destination) if p.edge == route[-1])
             final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.end_pos_m - plat.start_pos_m)
         platforms = [(f"{f}.stops[{j}].station", s) for j, s in enumerate(planned_stops)] + ([(f"{f}.destination", final)] if final else [])
-        if svc.origin not in topo.endpoints:
-            first = next(p for p in topo.platforms_of(svc.origin) if p.edge == route[0])
+        first = next((p for p in topo.platforms_of(svc.origin) if p.edge == route[0]), None) if svc.origin not in topo.endpoints else None
+        if first is not None:
             platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.end_pos_m - first.start_pos_m)))
         for where, stop in platforms:
             if stop.platform_length_m + 1e-6 < stock.length_m:
