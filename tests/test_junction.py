@@ -215,13 +215,12 @@ def test_split_only_and_merge_only_directions(tmp_path):
 
 def test_junction_study_file_runs_the_command(in_tmp, capsys, root):
     from vcsumo.cli.main import main
-    from vcsumo.cli.study_files import load_study, study_arguments
+    from vcsumo.cli.study_files import load_study
 
-    # the shipped files map onto the command line of `vcsumo study junction`
+    # the shipped files map onto the parameters of `vcsumo study junction`
     st = load_study(root / "vcsumo" / "data" / "studies" / "junction_milano_bologna.yaml")
-    args = study_arguments(st, root / "vcsumo" / "data" / "studies" / "junction_milano_bologna.yaml", None)
-    assert args[:2] == ["study", "junction"] and args[args.index("--junction") + 1] == "venezia"
-    assert args[args.index("--junction-signal") + 1] == "braking-curve"
+    values = st.command_values()
+    assert values["junctions"] == "venezia" and values["variants"] == "braking-curve"
     # through `vcsumo study run`: a bad junction id is one error naming the line file and field, exit 2, no folder
     f = write(in_tmp / "j.yaml", "study: junction\nline: milano_bologna\njunction: bivio_nowhere\nout: res\n")
     assert main(["study", "run", str(f)]) == 2

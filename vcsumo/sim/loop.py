@@ -27,7 +27,6 @@ folder, so no half-written results remain.
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import time
@@ -40,6 +39,7 @@ import pandas as pd
 
 from vcsumo.errors import SumoError, VcsumoError
 from vcsumo.line import Line
+from vcsumo.results import write_csv, write_json
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.regimes import REGIMES, Regime
 from vcsumo.signalling.separation import SeparationModel
@@ -487,10 +487,10 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthM
     if scn.full_outputs:
         traj.to_csv(out / "trajectories.csv", index=False)
     passages.to_csv(out / "passages.csv", index=False)
-    stops.to_csv(out / "stop_events.csv", index=False)
-    trains_df.to_csv(out / "summary.csv", index=False)
+    write_csv(stops, out / "stop_events.csv")
+    write_csv(trains_df, out / "summary.csv")
     io = time.perf_counter() - t_io
     summary["io_time_s"] = round(io, 3)
     summary["wall_time_s"] = round(wall + io, 3)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(out / "summary.json", summary)
     return SimulationResult(traj, passages, stops, trains_df, summary)

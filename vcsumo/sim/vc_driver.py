@@ -46,7 +46,6 @@ e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part reads ``controller
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -67,6 +66,7 @@ from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError
+from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
@@ -469,7 +469,7 @@ class VCDriver:
                         "emergency_activations": f.emergency_episodes, "supervisor_interventions": f.interventions, "guard_interventions": f.guard_interventions,
                         "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes,
                         "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps})
-        (out / "vc_summary.json").write_text(json.dumps({"summary": self.summary(), "followers": per}, indent=2, default=str))
+        write_json(out / "vc_summary.json", {"summary": self.summary(), "followers": per})
 
 
 def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
