@@ -17,7 +17,7 @@ from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
 from vcsumo.errors import InputError
 
 HEADLINE = ["min_gap_front_to_rear_m", "collisions", "emergency_activations", "true_barrier_max_m", "gap_front_to_rear_mean_m", "gap_front_to_front_mean_m",
-            "gap_at_brake_onset_m", "gap_at_rest_m", "stop_delay_s", "step_cpu_mean_ms"]
+            "gap_at_brake_onset_m", "gap_at_rest_m", "stop_delay_s", "step_time_mean_ms"]
 
 
 def _csv(value: str | None, kind=str) -> list | None:
@@ -52,14 +52,15 @@ def experiment_cmd(file: str, variants: str | None, seeds: str | None, no_plots:
     value, unit), one PNG per run (speed, gap, force, active mode) and meta.json.
     """
     from vcsumo.results import ResultsFolder, default_out
-    from vcsumo.studies.experiment import input_files, run_file, write_results
+    from vcsumo.studies.experiment import input_files, plan_runs, run_file, write_results
     from vcsumo.studies.experiment_model import load_experiment
 
-    path, _, runs = load_experiment(file)  # validates the file and its variants before anything is written
+    path, _, runs = load_experiment(file)
     seed_list = _csv(seeds, int)
     if seed_list is not None and (not seed_list or any(s < 0 for s in seed_list)):
         raise InputError(None, "--seeds", "give one or more seeds ≥ 0")
     names = _csv(variants)
+    plan_runs(path, names, seed_list, check=True)  # every run's set-up is built once: problems before anything is written
     out = out or default_out("experiment", runs[0][1].name)
     with ResultsFolder(out, seed=seed_list[0] if seed_list else runs[0][1].seeds[0], params={"variants": names, "seeds": seed_list}) as rf:
         with progress_bar() as prog, progress_task(prog, runs[0][1].name) as upd:

@@ -399,7 +399,8 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
         with progress_bar() as prog, progress_task(prog, "felez2019") as upd:
             table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
     print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
-                ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions"],
+                ["strategy", "variant", "a_follower_mps2", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m",
+                 "collisions"],
                 csv_path=out / "felez2019.csv")
     out_console.print(f"wrote {out / 'felez2019.csv'}")
 

@@ -47,7 +47,7 @@ from vcsumo.control.mpc import MPCSettings, load_mpc_settings
 from vcsumo.control.params import resolve_params
 from vcsumo.studies.experiment import RunResult as ExperimentRun
 from vcsumo.studies.experiment import run_experiment
-from vcsumo.studies.experiment_model import resolve_experiment, runs_of
+from vcsumo.studies.experiment_model import resolve_experiment, runs_of, set_path
 
 PAPER = {
     "SH": {"stop_distance_m": 28.5, "stop_delay_s": 2.0},
@@ -102,7 +102,7 @@ _BRAKING = {"mpc-emergency": "planned-emergency", "mpc": "service", "emergency":
 def _data(strategy: str, n_trains: int, horizon: int | None, sc: Scenario) -> tuple[Path, dict, str]:
     path = resolve_experiment(FILES[strategy.upper()])
     data = copy.deepcopy(read_yaml(path))
-    lead, fol = data["trains"][0], data["trains"][1]
+    fol = data["trains"][1]
     if horizon is not None:
         fol["horizon_steps"] = int(horizon)
         data["leader"]["felez"]["horizon_steps"] = int(horizon)
@@ -120,8 +120,17 @@ def _data(strategy: str, n_trains: int, horizon: int | None, sc: Scenario) -> tu
         data["leader"]["felez"]["braking"] = _BRAKING[sc.leader_braking]
         if sc.leader_braking == "emergency":  # its movement authority ends beyond the emergency stop
             data["track"]["straight"]["length_m"] = data["leader"]["felez"]["stop_at_m"] + 1000.0
-    data["trains"] = [lead] + [{**copy.deepcopy(fol), "id": f"T{i}"} for i in range(1, n_trains)]
-    label = sc.variant or data.get("label", "default")
+    label = data.get("label", "default")
+    if sc.variant is not None and sc.variant != label:  # the variant's changes first, so that every follower gets them
+        variant = next((v for v in data.get("variants", []) if v.get("name") == sc.variant), None)
+        if variant is None:
+            raise ValueError(f"{path.name} has no variant '{sc.variant}'")
+        for key, value in variant["set"].items():
+            set_path(data, key, value)
+        label = data["label"] = sc.variant
+    data.pop("variants", None)
+    fol = data["trains"][1]
+    data["trains"] = [data["trains"][0]] + [{**copy.deepcopy(fol), "id": f"T{i}"} for i in range(1, n_trains)]
     return path, data, label
 
 

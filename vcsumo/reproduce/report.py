@@ -26,18 +26,6 @@ FELEZ_COLUMNS = ["strategy", "variant", "a_follower_mps2", "stop_distance_m", "p
                  "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions", "infeasible_steps", "solve_time_median_ms", "wall_time_s"]
 
 
-def _fitted_differs(strategy: str) -> bool:
-    """Whether a file's ``fitted`` variant changes its run (NP and MB: the fit is the files' a^f)."""
-    from vcsumo.config import read_yaml
-    from vcsumo.reproduce.felez2019 import FILES
-    from vcsumo.studies.experiment_model import resolve_experiment, runs_of
-
-    path = resolve_experiment(FILES[strategy])
-    runs = runs_of(read_yaml(path), path)
-    keep = {"label", "variants"}
-    return dict(runs)["fitted"].model_dump(exclude=keep) != runs[0][1].model_dump(exclude=keep)
-
-
 def reproduce_felez2019(out: Path, strategies: tuple[str, ...] = ("SH", "NP", "MB"), horizon: int = 40, sweep: bool = True, convoy: bool = True, progress=None) -> pd.DataFrame:
     """Write the §IV-A reproduction into ``out``; returns the strategy table (both variants)."""
     from vcsumo.reproduce import felez2019 as fz
@@ -47,11 +35,6 @@ def reproduce_felez2019(out: Path, strategies: tuple[str, ...] = ("SH", "NP", "M
     rows, trajectories, measurements = [], {}, []
     for s in strategies:
         for variant in (None, "fitted"):
-            if variant == "fitted" and not _fitted_differs(s):
-                row = rows[-1].copy()
-                row["variant"] = "fitted"
-                rows.append(row)
-                continue
             df = fz.run_felez2019((s,), horizon, variant=variant)
             rows.append(df.iloc[0].to_dict())
             name = s if variant is None else f"{s} fitted"
@@ -100,11 +83,11 @@ def comparison_table(summary: pd.DataFrame) -> pd.DataFrame:
             col = f"{key}_at_{speed}_m"
             paper = PAPER["coupled_interdistance_50_m"] if (speed == 50 and key == "interdistance") else math.nan
             authors = AUTHORS_CODE.get(f"coupled_interdistance_{speed}_m", math.nan) if key == "interdistance" else math.nan
-            rows.append({"quantity": f"OS1 coupled distance at {speed} m/s, {conv.replace('_', ' ')}, m", "paper": paper, "authors_code": authors,
+            rows.append({"quantity": f"OS1 coupled distance at {speed} m/s ({conv.replace('_', ' ')}) m", "paper": paper, "authors_code": authors,
                          "vcsumo_paper_equations": get("os1_delay_0.8s", col), "vcsumo_authors_conventions": get("os1_authors", col)})
-    rows.append({"quantity": "OS1 both stopped, front to front, m", "paper": math.nan, "authors_code": AUTHORS_CODE["both_stopped_interdistance_m"],
+    rows.append({"quantity": "OS1 both stopped (front to front) m", "paper": math.nan, "authors_code": AUTHORS_CODE["both_stopped_interdistance_m"],
                  "vcsumo_paper_equations": get("os1_delay_0.8s", "both_stopped_interdistance_m"), "vcsumo_authors_conventions": get("os1_authors", "both_stopped_interdistance_m")})
-    rows.append({"quantity": "OS2 coupled at 50 m/s (300-500 s), front to front, m", "paper": PAPER["os2_interdistance_m"], "authors_code": math.nan,
+    rows.append({"quantity": "OS2 coupled at 50 m/s in 300-500 s (front to front) m", "paper": PAPER["os2_interdistance_m"], "authors_code": math.nan,
                  "vcsumo_paper_equations": get("os2_estimator_on", "interdistance_steady_m"), "vcsumo_authors_conventions": math.nan})
     for run, label in (("os2_estimator_on", "with"), ("os2_estimator_off", "without")):
         rows.append({"quantity": f"OS2 emergency activations {label} the delay estimator", "paper": math.nan, "authors_code": math.nan,

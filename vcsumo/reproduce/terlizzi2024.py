@@ -144,7 +144,7 @@ def summary_row(res: RunResult, scenario: str) -> dict:
         "min_interdistance_m": v("min_gap_front_to_front_m", fid), "true_barrier_max": v("true_barrier_max_m", fid),
         "robust_barrier_max": v("robust_barrier_max_m", fid), "packets_sent": int(v("packets_sent")), "packets_delivered": int(v("packets_delivered")),
         "packets_lost": int(v("packets_lost")), "qp_solves": int(v("qp_solves", fid)), "qp_failures": int(v("qp_failures", fid)),
-        "follower_step_mean_ms": v("step_cpu_mean_ms", fid), "follower_step_p99_ms": v("step_cpu_p99_ms", fid), "seed": res.seed,
+        "follower_step_mean_ms": v("step_time_mean_ms", fid), "follower_step_p99_ms": v("step_time_p99_ms", fid), "seed": res.seed,
         "both_stopped": stopped, "both_stopped_gap_m": float(arr["gap_fr"][-1, 0]) if stopped else math.nan,
         "both_stopped_interdistance_m": float(arr["gap_ff"][-1, 0]) if stopped else math.nan, "safety_distance_m": cbf.cfg.safety_distance_m,
         "wall_time_s": res.wall_time_s, "cpu_time_s": res.cpu_time_s,

@@ -120,10 +120,12 @@ def run_experiment(exp: Experiment, seed: int, base_dir: Path | None = None, pat
     return RunResult(name, variant, seed, exp, traj, meas, arr, setup, wall, cpu, len(arr["t"]))
 
 
-def run_file(spec: str | Path, variants: list[str] | None = None, seeds: list[int] | None = None, progress=None) -> list[RunResult]:
-    """Every run of an experiment file (path or shipped name): its own and its variants', for each seed.
+def plan_runs(spec: str | Path, variants: list[str] | None = None, seeds: list[int] | None = None, check: bool = False) -> tuple[Path, list[tuple[str, Experiment, int]]]:
+    """(the file's path, [(run name, experiment, seed)]) of an experiment file's runs: its own and its
+    variants' (or those named in ``variants``), for each seed (the file's, or ``seeds``).
 
-    ``variants``/``seeds`` select (names of runs, seeds); ``progress(done, total)`` is called after each run."""
+    ``check``: build every run's set-up once (track, stocks, stacks, parameter overrides) so that a
+    problem is reported before anything runs."""
     from vcsumo.errors import InputError
 
     path, _, runs = load_experiment(spec)
@@ -133,7 +135,17 @@ def run_file(spec: str | Path, variants: list[str] | None = None, seeds: list[in
         if bad:
             raise InputError(None, "--variants", f"unknown run {bad[0]!r} (the file has: {', '.join(known)})")
         runs = [(n, e) for n, e in runs if n in variants]
-    todo = [(n, e, s) for n, e in runs for s in (seeds or e.seeds)]
+    if check:
+        for _, exp in runs:
+            build_setup(exp, (seeds or exp.seeds)[0], path.parent, path)
+    return path, [(n, e, s) for n, e in runs for s in (seeds or e.seeds)]
+
+
+def run_file(spec: str | Path, variants: list[str] | None = None, seeds: list[int] | None = None, progress=None) -> list[RunResult]:
+    """Every run of an experiment file (path or shipped name): its own and its variants', for each seed.
+
+    ``variants``/``seeds`` select (names of runs, seeds); ``progress(done, total)`` is called after each run."""
+    path, todo = plan_runs(spec, variants, seeds)
     out = []
     profiles: dict[str, RouteProfile] = {}
     for k, (name, exp, seed) in enumerate(todo):
@@ -176,4 +188,4 @@ def input_files(spec: str | Path, results: list[RunResult]) -> dict[str, Path]:
     return files
 
 
-__all__ = ["MEASUREMENT_COLUMNS", "RunResult", "run_experiment", "run_file", "write_results", "input_files"]
+__all__ = ["MEASUREMENT_COLUMNS", "RunResult", "run_experiment", "plan_runs", "run_file", "write_results", "input_files"]

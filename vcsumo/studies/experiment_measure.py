@@ -7,7 +7,8 @@ first step, whatever ``record_every`` is) and the rows of ``trajectories.csv`` (
 
 :func:`measure` turns a run into tidy rows ``(train, window, quantity, value, unit)``: minimum gaps
 front to rear and front to front, collisions, emergency activations and episodes, barrier extremes,
-step CPU times and solve times, packets, the gaps in the file's windows (time and/or speed) and,
+the wall-clock time of each follower's stack per step (``step_time_*_ms``) and its controller's solve
+times, packets, the gaps in the file's windows (time and/or speed) and,
 with ``measurements.stop``, the leader's stop: brake onset, stop delays, the gap at the onset
 (``gap_at_brake_onset_m``) and once both stand (``gap_at_rest_m``).
 """
@@ -38,7 +39,7 @@ cruise references z_τ1..3 (m), and whether a new packet arrived this step with 
 
 
 class Timed:
-    """A driver with the CPU time of each of its steps (``seconds``), for the measurements."""
+    """A driver with the wall-clock time of each of its steps (``seconds``), for the measurements."""
 
     def __init__(self, driver):
         self.driver = driver
@@ -226,9 +227,9 @@ def measure(exp: Experiment, arr: dict[str, np.ndarray], ids: list[str], lengths
             add(tid, "", "tmax_activations", stats.tmax_activations, "-")
         cpu = np.array(timers[j].seconds) * 1e3
         if len(cpu):
-            add(tid, "", "step_cpu_mean_ms", cpu.mean(), "ms")
-            add(tid, "", "step_cpu_p99_ms", np.percentile(cpu, 99), "ms")
-            add(tid, "", "step_cpu_max_ms", cpu.max(), "ms")
+            add(tid, "", "step_time_mean_ms", cpu.mean(), "ms")
+            add(tid, "", "step_time_p99_ms", np.percentile(cpu, 99), "ms")
+            add(tid, "", "step_time_max_ms", cpu.max(), "ms")
         nominal = setup.stack.nominal
         st = getattr(nominal, "stats", None)
         solve = np.array(getattr(st, "solve_times_s", []) or [], dtype=float) * 1e3
