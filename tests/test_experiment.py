@@ -23,7 +23,7 @@ from vcsumo.studies.experiment_build import build_setup, channel_config
 from vcsumo.studies.experiment_measure import window_mask
 from vcsumo.studies.experiment_model import ChannelSpec, GapWindow, load_experiment, runs_of
 
-from tests.conftest import DATA, write
+from .conftest import DATA, write
 
 TINY = """
 name: tiny
@@ -51,6 +51,8 @@ measurements:
 variants:
   - name: late
     set: {leader.events.0.at_m: 6000.0}
+  - name: at_km
+    set: {leader.events.0: {action: emergency_brake, at_km: 6.0}}
 """
 
 
@@ -66,7 +68,7 @@ def tiny_runs(tmp_path_factory):
 def test_emergency_brake_at_a_position(tiny_runs):
     """The leader brakes fully when its front reaches 5,000 m; it stops after about v²/(2·a_em)."""
     base = tiny_runs[0]
-    assert [r.run for r in tiny_runs] == ["default-seed3", "late-seed3"]
+    assert [r.run for r in tiny_runs] == ["default-seed3", "late-seed3", "at_km-seed3"]
     t, pos, v = base.arrays["t"], base.arrays["pos"][:, 0], base.arrays["speed"][:, 0]
     onset = base.value("leader_brake_onset_s", "lead", "stop")
     k = int(np.searchsorted(t, onset))
@@ -74,8 +76,9 @@ def test_emergency_brake_at_a_position(tiny_runs):
     stop_pos = base.value("leader_stop_position_m", "lead", "stop")
     a_em = 1.2  # the terlizzi2024 stock's emergency brake, plus its running resistance
     assert 30.0**2 / (2 * (a_em + 0.05)) - 5.0 <= stop_pos - pos[k] <= 30.0**2 / (2 * a_em) + 30.0 * 0.2 + 1.0
-    late = tiny_runs[1]
+    late, at_km = tiny_runs[1], tiny_runs[2]
     assert late.value("leader_stop_position_m", "lead", "stop") - stop_pos == pytest.approx(1000.0, abs=10.0)
+    assert at_km.value("leader_stop_position_m", "lead", "stop") == late.value("leader_stop_position_m", "lead", "stop")  # km 6 of the straight
     for r in tiny_runs:  # the follower (cbc, guarded) stops behind without touching it
         assert r.value("collisions", "f1") == 0 and r.value("min_gap_front_to_rear_m", "f1") > 0.0
         assert r.value("stop_time_s", "f1") >= r.value("leader_stop_time_s", "lead", "stop")
@@ -132,9 +135,9 @@ def test_paths_are_relative_to_the_file(tmp_path, monkeypatch):
     write(folder / "stock" / "my_train.yaml", stock)
     write(folder / "params" / "my_cbc.yaml", (DATA / "controllers" / "cbc.yaml").read_text())
     text = TINY.replace("stock: terlizzi2024_follower", "stock: stock/my_train.yaml").replace("controller: cbc}", "controller: cbc, params: params/my_cbc.yaml}")
-    path = _tiny(folder, text.replace("duration_s: 160.0", "duration_s: 10.0"))
+    _tiny(folder, text.replace("duration_s: 160.0", "duration_s: 10.0"))
     monkeypatch.chdir(tmp_path)
-    _, _, runs = load_experiment(path)
+    path, _, runs = load_experiment("exp/tiny.yaml")  # a relative path: the file's folder is relative too
     setup = build_setup(runs[0][1], 1, path.parent, path)
     assert setup.stocks[1].name == "my_train"
     assert {p.name for p in setup.input_files.values()} == {"my_train.yaml", "my_cbc.yaml"}

@@ -36,6 +36,10 @@ K_E^F demands the strongest brake of the box and holds it at standstill (see
 :func:`emergency_force_n`); a force lag or jerk limit of the follower is bounded by a dead time
 (:meth:`~vcsumo.control.proxies.BoxBounds.actuation_delay_s`) from the force it may be applying.
 
+``convention: authors`` replaces eq. 15 by the barrier of the authors' public code (d front to
+front, the halved stopping term, fixed brake forces: :data:`AUTHORS_BRAKE_FORCES_N`), to reproduce
+the paper's figures; it guarantees nothing.
+
 The *true* barrier (eq. 15 on the true states of both trains) is what the safety guarantee is
 about (Theorem VI.1); the supervisor records it whenever the observation carries the sensed gap and
 speed of the predecessor (it never uses them for control).

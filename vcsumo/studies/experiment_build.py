@@ -163,7 +163,7 @@ def plant_params(stock: RollingStock, kind: str, rng: np.random.Generator) -> Tr
 
 def _with_overrides(model: type[BaseModel], spec: str | None, default: str, overrides: dict[str, Any], base_dir, field_name: str, path) -> BaseModel:
     """Load a parameter file and replace fields, validated like the file (errors name ``field_name``)."""
-    file = resolve_params(_rel(spec, base_dir) if spec else None, default, field_name, base_dir)
+    file = resolve_params(spec, default, field_name, base_dir)
     raw = read_yaml(file)
     if not isinstance(raw, dict):
         return parse_model(model, raw, file)
@@ -211,7 +211,7 @@ def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile:
             else:
                 raise InputError(path, f"{fld}.horizon_steps", f"controller family '{cs.family}' has no horizon")
     elif spec is not None:
-        nominal = resolve_params(_rel(spec, base_dir), entry.default_params or "", f"{fld}.params", base_dir)
+        nominal = resolve_params(spec, entry.default_params or "", f"{fld}.params", base_dir)
         files.append(nominal)
     sup: Any = None
     if cs.supervisor is not None or cs.family == "cruise":
@@ -220,7 +220,7 @@ def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile:
             sup = _with_overrides(SUPERVISOR_MODELS[sup_name], tr.supervisor_params, SUPERVISORS[sup_name].default_params, tr.supervisor_overrides, base_dir,
                                   f"{fld}.supervisor_overrides", path)
         elif tr.supervisor_params is not None:
-            sup = resolve_params(_rel(tr.supervisor_params, base_dir), SUPERVISORS[sup_name].default_params, f"{fld}.supervisor_params", base_dir)
+            sup = resolve_params(tr.supervisor_params, SUPERVISORS[sup_name].default_params, f"{fld}.supervisor_params", base_dir)
             files.append(sup)
     ctx = StackContext(ego=stocks[k], predecessor=stocks[k - 1], step_s=exp.step_s, profile=profile, params=nominal, supervisor_params=sup,
                        guard=tr.guard, base_dir=base_dir, field=f"{fld}.controller", ego_id=tr.id, predecessor_id=exp.trains[k - 1].id,
@@ -305,6 +305,7 @@ def leader_driver(exp: Experiment, stock: RollingStock, profile: RouteProfile, b
             raise InputError(path, exc.field, exc.message) from None
     at_s = [e.at_s for e in spec.events if e.action == "emergency_brake" and e.at_s is not None]
     at_m = [e.at_m for e in spec.events if e.action == "emergency_brake" and e.at_m is not None]
+    at_m += [_s_at_km(profile, e.at_km, f"leader.events[{k}].at_km", path) for k, e in enumerate(spec.events) if e.action == "emergency_brake" and e.at_km is not None]
     if at_s or at_m:
         driver = LeaderEvents(driver, at_s, at_m, plan)
         plan = driver.plan if plan is not None else None
@@ -313,6 +314,7 @@ def leader_driver(exp: Experiment, stock: RollingStock, profile: RouteProfile, b
 
 def build_setup(exp: Experiment, seed: int, base_dir: Path | None = None, path=None, profile: RouteProfile | None = None) -> Setup:
     """Track, trains (plants, initial states, drivers), follower stacks and channel of one run."""
+    base_dir = Path(base_dir).resolve() if base_dir is not None else None  # paths handed on stay valid whatever the working directory
     profile = profile or build_profile(exp.track, base_dir, path)
     stocks = [build_stock(t.stock, base_dir, f"trains[{k}].stock", path) for k, t in enumerate(exp.trains)]
     rng = np.random.default_rng(seed)

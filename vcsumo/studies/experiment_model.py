@@ -115,13 +115,14 @@ class LeaderEvent(StrictModel):
 
     action: Literal["emergency_brake", "speed"] = Field(description="emergency_brake (held to the end) or speed (a new target speed)")
     at_s: float | None = Field(default=None, ge=0, le=864000, description="Time of the event, s")
-    at_m: float | None = Field(default=None, ge=0, le=2e6, description="Emergency brake once the leader's front reaches this position, m")
+    at_m: float | None = Field(default=None, ge=0, le=2e6, description="Emergency brake once the leader's front reaches this position on the track, m")
+    at_km: float | None = Field(default=None, ge=-1e5, le=1e5, description="Emergency brake once the leader's front reaches this km (of the line; of the straight from its start), km")
     speed_mps: float | None = Field(default=None, ge=0, le=170, description="The new target speed (action speed), m/s")
 
     @model_validator(mode="after")
     def _consistent(self) -> "LeaderEvent":
-        if (self.at_s is None) == (self.at_m is None):
-            raise ValueError("give exactly one of at_s and at_m")
+        if sum(x is not None for x in (self.at_s, self.at_m, self.at_km)) != 1:
+            raise ValueError("give exactly one of at_s, at_m and at_km")
         if self.action == "speed" and (self.speed_mps is None or self.at_s is None):
             raise ValueError("a speed event needs at_s and speed_mps")
         if self.action == "emergency_brake" and self.speed_mps is not None:
@@ -269,6 +270,8 @@ class Experiment(StrictModel):
             if tid in ids[:k]:
                 raise FieldProblem(f"trains.{k}.id", f"duplicate train id '{tid}'")
         lead = self.trains[0]
+        if self.leader.driver == "felez_mpc" and lead.plant != "nominal":
+            raise FieldProblem("trains.0.plant", "the felez_mpc leader's plant is its stock with the brake of leader.felez.braking: nominal only")
         if lead.controller is not None or lead.gap_m is not None:
             raise FieldProblem("trains.0", "the first train is the leader: it has no controller or gap_m (see leader)")
         for k, t in enumerate(self.trains[1:], start=1):
