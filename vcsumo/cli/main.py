@@ -17,6 +17,7 @@ from pathlib import Path
 
 import click
 
+from vcsumo.cli.experiment import experiment_cmd
 from vcsumo.cli.ui import console, out_console, print_table, progress_bar, progress_task
 from vcsumo.errors import VcsumoError
 from vcsumo.log import set_verbosity, setup_logging, verbosity
@@ -147,25 +148,28 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
         with progress_bar() as prog, progress_task(prog, "felez2019") as upd:
             table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
     print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
-                ["strategy", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m", "collisions"],
+                ["strategy", "variant", "a_follower_mps2", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m",
+                 "collisions"],
                 csv_path=out / "felez2019.csv")
     out_console.print(f"wrote {out / 'felez2019.csv'}")
 
 
 @reproduce.command("terlizzi2024")
-@click.option("--scenario", type=click.Choice(["os1", "os2", "both"]), default="both", show_default=True)
+@click.option("--scenario", type=click.Choice(["os1", "os2", "authors", "both", "all"]), default="all", show_default=True,
+              help="os1 (delays 3 s, 0.8 s), os2 (estimator on/off), authors (the authors' code set-up), both (os1 + os2), all")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
-    """Terlizzi, Liuzza & Glielmo (2024) OS1 (delays 3 s / 0.8 s) and OS2 (delay estimator on/off)."""
+    """Terlizzi, Liuzza & Glielmo (2024) OS1 (delays 3 s / 0.8 s), OS2 (delay estimator on/off) and the authors'-code OS1 (the shipped experiment files)."""
     from vcsumo.reproduce.report import reproduce_terlizzi2024
     from vcsumo.results import ResultsFolder, default_out
 
-    scen = ("os1", "os2") if scenario == "both" else (scenario,)
+    scen = {"both": ("os1", "os2"), "all": ("os1", "os2", "authors")}.get(scenario, (scenario,))
     out = out or default_out("reproduce", "terlizzi2024")
     with ResultsFolder(out, params={"scenarios": scen}) as rf:
         with progress_bar() as prog, progress_task(prog, "terlizzi2024") as upd:
             summary = reproduce_terlizzi2024(rf.path, scen, progress=upd)
-    cols = [c for c in ["run", "coupled_distance_m", "emergency_activations", "min_gap_m", "both_stopped_gap_m", "true_barrier_max", "robust_barrier_max"] if c in summary]
+    cols = [c for c in ["run", "coupled_distance_m", "coupled_interdistance_m", "emergency_activations", "min_gap_m", "both_stopped_gap_m", "true_barrier_max",
+                        "robust_barrier_max"] if c in summary]
     print_table(summary, "Terlizzi et al. (2024) — reproduced", cols)
     out_console.print(f"wrote {out}")
 
@@ -200,6 +204,7 @@ def _register_safety() -> None:
 
 
 _register_safety()
+cli.add_command(experiment_cmd)
 
 EXAMPLES = {
     "lines": "vcsumo lines",
@@ -211,6 +216,7 @@ EXAMPLES = {
     "study safety": "vcsumo study safety --scenarios 100 --controllers cbc,cbf-cbc --seed 7",
     "study run": "vcsumo study run capacity_hcmc_line1 --out results/hcmc",
     "batch": "vcsumo batch --line felez_test --timetables convoy --regimes fbs,vc --seeds 3",
+    "experiment": "vcsumo experiment terlizzi2024_os1_authors --out results/os1-authors",
     "reproduce felez2019": "vcsumo reproduce felez2019 --strategies SH,MB --no-sweep",
     "reproduce terlizzi2024": "vcsumo reproduce terlizzi2024 --scenario os1",
     "reproduce": "vcsumo reproduce felez2019",

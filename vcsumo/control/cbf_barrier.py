@@ -21,6 +21,10 @@ Two forms, chosen by :class:`CBFConfig` (``distance``, ``leader_braking``):
   it is the maximum over the episode, never a negative term.  The leader's state is Algorithm 1's
   (its RLP from the newest packet, braking at its strongest since), so the message age and the T^max
   rule of eq. 18 enter as in the paper.
+
+``convention: authors`` (with ``distance: fixed``) replaces eq. 15 by the barrier of the authors'
+public code (d front to front, the halved stopping term, fixed brake forces:
+:data:`AUTHORS_BRAKE_FORCES_N`), to reproduce the paper's figures; it guarantees nothing.
 """
 
 from __future__ import annotations
@@ -66,11 +70,36 @@ class CBFConfig(StrictModel):
     trigger_margin_m: float = Field(default=0.0, ge=0, le=50000, description="Enforce K_E^F when b ≥ −margin, m, 0–50 km (0: the paper's b ≥ 0)")
     brake_without_leader_data: bool = Field(default=False, description="Hold K_E^F until the first leader packet (false: Algorithm 1 starts with the first packet, as in the paper)")
     position_error_m: float = Field(default=0.0, ge=0, le=100, description="Bound e_s of each train's position error, m (0–100 m); the barrier keeps d + 2·e_s between measured positions (Felez eq. 9), so the true gap stays ≥ d (distance: model — the larger of e_s and the assumption set's error)")
+    convention: Literal["paper", "authors"] = Field(default="paper", description="Barrier conventions with distance: fixed: 'paper' (eq. 15 with L^L + d and the box decelerations) or 'authors' (the authors' public code: d front to front, the halved stopping-distance term 0.5·(v²/(2a)), fixed brake forces 315/330/370 kN; see AUTHORS_BRAKE_FORCES_N)")
 
 
 def load_cbf_config(path: str | Path) -> CBFConfig:
     """Read a CBF parameter file (e.g. ``controllers/cbf.yaml``)."""
     return load_model(CBFConfig, path)
+
+# -------------------------------------------------------------------------------------------
+# The authors' code conventions (``convention: authors``)
+
+AUTHORS_BRAKE_FORCES_N = {"follower": 315e3, "leader": 330e3, "rlp": 370e3}
+"""Fixed brake forces of the authors' public code (github.com/mar4945/tool-RFI, RailwayClasses/Train.py,
+for their 490 t leader and 540 t follower), N: the follower's stop in b' (with M̄ and A̲ only), the
+leader's stop in b' (with M̲ and Ā + B̄v + C̄v²) and the leader RLP predictor of Algorithm 1
+(its emergency braking, with M̲ and the full resistance).  With ``convention: authors`` the barrier
+is b' = d − (x1^L − x1^F) − ½·(x2^L²/(2e^L) − x2^F²/(2e^F)), b'' = d − (x1^L − x1^F): d front to
+front (no L^L) and the stopping-distance term halved — written as stopping points under twice these
+decelerations (on a level track, as the authors', exactly their formula; a grade enters through the
+route window as in ``stop_model: window``).  This is not the paper's eq. 15 and guarantees nothing:
+it is there to reproduce the paper's figures (~1,300 m coupled at 50 m/s)."""
+
+
+def authors_decel(box: BoxBounds, role: str, v_mps: float, grade: float) -> float:
+    """The authors' deceleration under their fixed brake force of ``role`` (follower, leader, rlp), m/s² (positive)."""
+    force = AUTHORS_BRAKE_FORCES_N[role]
+    if role == "follower":  # e_up: the heaviest train, the least resistance (A̲ only), the flattest grade
+        return (force + box.davis_a_low_n) / (box.rotating_mass_factor * box.mass_high_kg) + G * grade
+    res = box.davis_a_high_n + box.davis_b_high_n_per_mps * v_mps + box.davis_c_high_n_per_mps2 * v_mps * v_mps
+    return (force + res) / (box.rotating_mass_factor * box.mass_low_kg) + G * grade  # e_lp: the lightest, full resistance
+
 
 # -------------------------------------------------------------------------------------------
 # Barrier (eq. 15)
@@ -126,6 +155,10 @@ class BarrierModel:
         self.leader_length_m = leader.length_m
         self.d_m = config.safety_distance_m + 2.0 * config.position_error_m  # Felez eq. 9: d_min = d0 + 2·e_s
         self.profile_mode = config.stop_model == "profile"
+        self.authors = config.convention == "authors"
+        if self.authors:  # d front to front, closed-form stopping points (AUTHORS_BRAKE_FORCES_N)
+            self.leader_length_m = 0.0
+            self.profile_mode = False
         self.stops_leader = StopIntegral(profile, leader.length_m)
         self.stops_follower = StopIntegral(profile, follower.length_m)
         tf = self.leader.route.global_bounds.tunnel_max
@@ -160,6 +193,8 @@ class BarrierModel:
         t_max = self.cfg.t_max_s
         v_hi = min(max(lead.b.max_speed_ms, v0), v0 + lead.b.accel_high(v0) * t_max)
         rb = lead.leader_path_bounds(s0, s0, v_hi, t_max)
+        if self.authors:  # the authors' RLP brakes at their fixed emergency force
+            return authors_decel(lead.b, "rlp", v0, rb.grade_max), rb
         return lead.leader_decel(v0, rb), rb
 
     # ---- decelerations without the grade -------------------------------------------------
@@ -186,11 +221,16 @@ class BarrierModel:
 
     def leader_decel(self, s: float, v: float, rb: RouteBounds | None = None) -> float:
         """e̲^L at a leader state (window from :meth:`RobustProxies.leader_stop_bounds` unless given)."""
-        return self.leader.leader_decel(v, rb if rb is not None else self.leader_bounds(s, v))
+        rb = rb if rb is not None else self.leader_bounds(s, v)
+        if self.authors:  # twice the authors' e^L: their halved stopping term
+            return 2.0 * authors_decel(self.leader.b, "leader", v, rb.grade_max)
+        return self.leader.leader_decel(v, rb)
 
     def follower_decel(self, s: float, v: float, v_window: float | None = None) -> float:
         """ē^F at a follower state; the route window is that of speed ``v_window`` (≥ v) if given."""
         rb, _ = self.follower.follower_stop_bounds(s, max(v, v_window or 0.0), self.cfg.epsilon)
+        if self.authors:  # twice the authors' e^F: their halved stopping term
+            return 2.0 * authors_decel(self.follower.b, "follower", v, rb.grade_min)
         return self.follower.follower_decel(v, rb, self.cfg.epsilon)
 
     # ---- stopping points ------------------------------------------------------------------
