@@ -12,6 +12,7 @@ from pathlib import Path
 
 import click
 
+from vcsumo.cli.tradeoff import tradeoff_cmd
 from vcsumo.cli.ui import console, out_console, print_table, progress_bar, progress_task
 from vcsumo.errors import VcsumoError
 from vcsumo.log import set_verbosity, setup_logging, verbosity
@@ -446,6 +447,7 @@ def _register_safety() -> None:
 
 
 _register_safety()
+study.add_command(tradeoff_cmd)
 
 EXAMPLES = {
     "lines": "vcsumo lines",
@@ -455,6 +457,7 @@ EXAMPLES = {
     "study capacity": "vcsumo study capacity --line firenze_bologna --controllers cbc,cbf-cbc --workers 2",
     "study junction": "vcsumo study junction --line firenze_bologna --controllers cbc",
     "study safety": "vcsumo study safety --scenarios 100 --controllers cbc,cbf-cbc --seed 7",
+    "study tradeoff": "vcsumo study tradeoff --line firenze_bologna --grid --simulate-check 2",
     "study run": "vcsumo study run capacity_hcmc_line1 --out results/hcmc",
     "batch": "vcsumo batch --line felez_test --timetables convoy --regimes fbs,vc --seeds 3",
     "reproduce felez2019": "vcsumo reproduce felez2019 --strategies SH,MB --no-sweep",

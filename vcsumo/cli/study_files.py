@@ -16,6 +16,7 @@ from pydantic import Field, TypeAdapter, ValidationError, field_validator
 from vcsumo.config import StrictModel, is_file, read_yaml, validation_error
 from vcsumo.errors import InputError
 from vcsumo.studies.safety import SafetyCampaign
+from vcsumo.studies.tradeoff import TradeoffConfig
 
 BlockLength = Annotated[float, Field(ge=100, le=50000, description="Block length, m (100 m–50 km, as in line files)")]
 ConvoySize = Annotated[int, Field(ge=1, le=20, description="Trains in a convoy (1–20: longer convoys are not studied)")]
@@ -109,10 +110,17 @@ class SafetyStudy(_Out, SafetyCampaign):
     workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (default: number of CPUs)")
 
 
-StudyFile = Annotated[Union[CapacityStudy, HeadwayStudy, BatchStudy, JunctionStudy, SafetyStudy], Field(discriminator="study")]
+class TradeoffStudy(_Out, TradeoffConfig):
+    """``vcsumo study tradeoff``: the study's options (:class:`~vcsumo.studies.tradeoff.TradeoffConfig`)."""
+
+    study: Literal["tradeoff"]
 
 
-_KINDS = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy, "safety": SafetyStudy}
+StudyFile = Annotated[Union[CapacityStudy, HeadwayStudy, BatchStudy, JunctionStudy, SafetyStudy, TradeoffStudy], Field(discriminator="study")]
+
+
+_KINDS = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy, "safety": SafetyStudy,
+          "tradeoff": TradeoffStudy}
 
 
 def load_study(path: str | Path) -> CapacityStudy | HeadwayStudy | BatchStudy | JunctionStudy | SafetyStudy:
@@ -211,6 +219,11 @@ def study_arguments(study, path: Path, out: Path | None) -> list[str]:
         if study.workers:
             args += ["--workers", str(study.workers)]
         return args + (["--out", str(dest)] if dest is not None else [])
+    if isinstance(study, TradeoffStudy):
+        from vcsumo.cli.tradeoff import tradeoff_arguments
+
+        assumptions = _resolve(study.assumptions, base) if study.assumptions else None
+        return tradeoff_arguments(study, _resolve(study.line, base), assumptions) + (["--out", str(dest)] if dest is not None else [])
     args = ["--line", _resolve(study.line, base)]
     if isinstance(study, CapacityStudy):
         args = ["study", "capacity"] + args
