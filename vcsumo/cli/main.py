@@ -200,7 +200,7 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
 # ----------------------------------------------------------------------------------------------
 @cli.group("study")
 def study() -> None:
-    """Studies: capacity, headway, junction, safety, and run (a study file).
+    """Studies: capacity, headway, junction, safety, tradeoff, and run (a study file).
 
     \b
     Example:
@@ -349,7 +349,7 @@ def capacity_cmd(line_spec: str, train: str | None, controllers: str, convoy_siz
 @click.argument("study_file", type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (overrides the file's out)")
 def study_run_cmd(study_file: Path, out: Path | None) -> None:
-    """Run a study definition file: capacity, headway, batch, junction or safety.
+    """Run a study definition file: capacity, headway, batch, junction, safety or tradeoff.
 
     STUDY_FILE is a path, or the name of a shipped study (e.g. capacity_hcmc_line1, from the
     package's data/studies/ or $VCSUMO_HOME/studies/).

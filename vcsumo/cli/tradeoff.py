@@ -100,7 +100,9 @@ def tradeoff_cmd(line_spec: str, train: str | None, convoy_sizes: str, delays: s
             prog.stop()
     t = res.table[res.table.parameter != "grid"].copy()
     t["unit"] = [r.upper() if r != "vc" else f"VC n={n}" for r, n in zip(t.regime, t.convoy_size)]
-    view = t.pivot_table(index=["parameter", "value"], columns="unit", values="capacity_trains_per_h", sort=False).reset_index()
+    view = t.pivot_table(index=["parameter", "value"], columns="unit", values="capacity_trains_per_h").reset_index()
+    order = list(dict.fromkeys(t.parameter))
+    view = view.sort_values(["parameter", "value"], key=lambda c: c.map(order.index) if c.name == "parameter" else c, ignore_index=True)
     units = list(dict.fromkeys(t.unit))
     vc2 = t[(t.regime == "vc") & (t.convoy_size == min(cfg.convoy_sizes))].set_index(["parameter", "value"]).gain_vs_mb
     view[f"VC n={min(cfg.convoy_sizes)} / MB"] = [vc2.get((p, v)) for p, v in zip(view.parameter, view.value)]

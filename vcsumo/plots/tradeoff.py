@@ -77,8 +77,7 @@ def plot_tradeoff(csv: Path, path: Path, check_csv: Path | None = None, breakeve
             handles.setdefault(_label(regime, n), h)
         base = float(g.base_value.iloc[0])
         ax.axvline(base * scale, color="0.45", lw=0.9, ls=":")
-        ax.annotate(f"base ({df.assumptions.iloc[0]}): {fmt.format(round(base * scale, 6))}", (base * scale, 0.5), xycoords=("data", "axes fraction"),
-                    xytext=(-3, 0), textcoords="offset points", fontsize=7.5, color="0.3", rotation=90, ha="right", va="center")
+        ax.plot([base * scale], [0.0], marker="^", ms=9, color="0.3", transform=ax.get_xaxis_transform(), clip_on=False)
         for regime, n in units:  # the base point on every line
             b = g[(g.regime == regime) & (g.convoy_size == n) & (g.value == base)]
             if len(b):
@@ -88,17 +87,20 @@ def plot_tradeoff(csv: Path, path: Path, check_csv: Path | None = None, breakeve
             if len(c):
                 h = ax.scatter(c.value * scale, c.capacity_sim_trains_per_h, marker="x", s=60, color="black", zorder=5)
                 handles.setdefault(f"VC n=2 simulated ({c.controller.iloc[0]})", h)
-        notes = []
+        notes = [f"dotted, ▲: base ({df.assumptions.iloc[0]}) {fmt.format(round(base * scale, 6))}"]
         if not_used:
-            notes.append(f"{', '.join(not_used)}: rule does not use it (same changed set, flat)")
+            notes.append(f"dashed: {', '.join(not_used)} — rule does not use it (computed under the same changed set)")
         if param == "t2t_delay_bound_s" and be is not None:
+            ahead = []
             for _, b in be.iterrows():
                 v = b.breakeven_value
-                notes.append(f"VC n={int(b.convoy_size)} falls to MB at {v:g} s" if isinstance(v, float) and math.isfinite(v)
-                             else f"VC n={int(b.convoy_size)} beats MB at every bound up to {float(b.searched_up_to):g} s")
-        if notes:
-            ax.text(0.02, 0.02, "\n".join(notes), transform=ax.transAxes, fontsize=7.5, va="bottom", color="0.2",
-                    bbox={"boxstyle": "round", "fc": "white", "ec": "0.8", "alpha": 0.85})
+                if isinstance(v, float) and math.isfinite(v):
+                    notes.append(f"VC n={int(b.convoy_size)} falls to MB's capacity at {v:g} s")
+                else:
+                    ahead.append(str(int(b.convoy_size)))
+            if ahead:
+                notes.append(f"VC n={', '.join(ahead)} beat{'s' if len(ahead) == 1 else ''} MB at every bound up to {float(be.searched_up_to.iloc[0]):g} s")
+        ax.set_title("\n".join(notes), fontsize=7.5, loc="left", color="0.2")
         ax.set_xlabel(label)
         ax.set_ylabel("line capacity, trains/h")
         ax.set_ylim(bottom=0)
