@@ -18,6 +18,7 @@ from pathlib import Path
 import click
 
 from vcsumo.cli.experiment import experiment_cmd
+from vcsumo.cli.tradeoff import tradeoff_cmd
 from vcsumo.cli.ui import console, out_console, print_table, progress_bar, progress_task
 from vcsumo.errors import VcsumoError
 from vcsumo.log import set_verbosity, setup_logging, verbosity
@@ -95,7 +96,7 @@ def lines_cmd() -> None:
 # ----------------------------------------------------------------------------------------------
 @cli.group("study")
 def study() -> None:
-    """Studies: capacity, headway, junction, safety, and run (a study file).
+    """Studies: capacity, headway, junction, safety, tradeoff, and run (a study file).
 
     \b
     Example:
@@ -107,7 +108,7 @@ def study() -> None:
 @click.argument("study_file", type=click.Path(path_type=Path))
 @click.option("--out", default=None, help="Results folder (overrides the file's out)")
 def study_run_cmd(study_file: Path, out: str | None) -> None:
-    """Run a study definition file: capacity, headway, batch, junction or safety.
+    """Run a study definition file: capacity, headway, batch, junction, safety or tradeoff.
 
     STUDY_FILE is a path, or the name of a shipped study (e.g. capacity_hcmc_line1, from the
     package's data/studies/ or $VCSUMO_HOME/studies/).  Paths in the file are relative to it; the
@@ -205,6 +206,7 @@ def _register_safety() -> None:
 
 _register_safety()
 cli.add_command(experiment_cmd)
+study.add_command(tradeoff_cmd)
 
 EXAMPLES = {
     "lines": "vcsumo lines",
@@ -214,6 +216,7 @@ EXAMPLES = {
     "study capacity": "vcsumo study capacity --line firenze_bologna --controllers cbc,cbf-cbc --workers 2",
     "study junction": "vcsumo study junction --line firenze_bologna --controllers cbc",
     "study safety": "vcsumo study safety --scenarios 100 --controllers cbc,cbf-cbc --seed 7",
+    "study tradeoff": "vcsumo study tradeoff --line firenze_bologna --grid --simulate-check 2",
     "study run": "vcsumo study run capacity_hcmc_line1 --out results/hcmc",
     "batch": "vcsumo batch --line felez_test --timetables convoy --regimes fbs,vc --seeds 3",
     "experiment": "vcsumo experiment terlizzi2024_os1_authors --out results/os1-authors",

@@ -1,6 +1,6 @@
 """Study files: ``studies/*.yaml`` run with ``vcsumo study run FILE``.
 
-A study file names its kind (``study: capacity | headway | batch | junction | safety``), a title and
+A study file names its kind (``study: capacity | headway | batch | junction | safety | tradeoff``), a title and
 notes, and the options of the matching command as fields of the command's own configuration model
 (:mod:`vcsumo.studies.configs`): the same names, units and bounds as the command line.  It is
 validated strictly (unknown keys are errors; every problem is listed), the names and files it refers
@@ -9,7 +9,7 @@ the results' inputs.  Paths in a study file (line, trains, timetables, assumptio
 configurations, controller parameter files) are relative to the file; its ``out`` is relative to the
 current folder and may not leave it.
 
-``junction`` and ``safety`` are not yet built from one configuration model: their file models are
+``junction``, ``safety`` and ``tradeoff`` are not yet built from one configuration model: their file models are
 here and :func:`run_study` hands their values to the command (``click.Context.invoke``).  Converting
 one is: give its Config the ``CommandConfig`` base and option names, generate its command with
 :func:`vcsumo.cli.options.config_command`, and list it in :data:`KINDS` with its function.
@@ -27,6 +27,7 @@ from vcsumo.config import CommandConfig, StrictModel, read_yaml
 from vcsumo.errors import InputError
 from vcsumo.studies.configs import BatchConfig, CapacityConfig, HeadwayConfig, Out, check_controller_spec, load_line_spec, load_train
 from vcsumo.studies.safety import SafetyCampaign
+from vcsumo.studies.tradeoff import TradeoffConfig
 
 
 class StudyFile(StrictModel):
@@ -135,8 +136,36 @@ class SafetyStudy(StudyFile, SafetyCampaign, CommandConfig):
                     rolling_stock=",".join(self.rolling_stock), scheduler=None, out=self.out_path)
 
 
+class TradeoffStudy(StudyFile, TradeoffConfig, CommandConfig):
+    """``vcsumo study tradeoff``: the study's options (:class:`~vcsumo.studies.tradeoff.TradeoffConfig`)."""
+
+    study: Literal["tradeoff"]
+    line: str = Field(min_length=1, description="Shipped line name or path to a line.yaml", json_schema_extra={"path": True})
+    train: str | None = Field(default=None, description="Train type (default: the line's default_train)", json_schema_extra={"path": True})
+    assumptions: str | None = Field(default=None, description="Base assumption set: shipped name or .yaml path (default: etcs_typical)",
+                                    json_schema_extra={"path": True})
+    out: Out = None
+
+    def inputs(self) -> None:
+        load_line_spec(self, "line")
+        if self.train:
+            load_train(self, "train", self.train)
+        check_controller_spec(self, "controller", self.controller)
+
+    def command_values(self) -> dict[str, Any]:
+        """The values of ``vcsumo study tradeoff``'s parameters."""
+        def floats(v: list[float]) -> str:
+            return ",".join(f"{x:g}" for x in v)
+
+        return dict(line_spec=self.line, train=self.train, convoy_sizes=",".join(map(str, self.convoy_sizes)), delays=floats(self.delays_s),
+                    uncertainties=floats(self.uncertainties), position_errors=floats(self.position_errors_m), grid=self.grid,
+                    assumptions=self.assumptions, pattern=self.pattern, direction=self.direction, simulate_check=self.simulate_check,
+                    controller=self.controller, block_length_m=self.block_length_m, step_length=self.step_length_s,
+                    vc_step_length=self.vc_step_length_s, seed=self.seed, out=self.out_path)
+
+
 KINDS: dict[str, type[CommandConfig]] = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy,
-                                         "safety": SafetyStudy}
+                                         "safety": SafetyStudy, "tradeoff": TradeoffStudy}
 """Study kinds (``study:``) and their file models."""
 
 
@@ -183,7 +212,8 @@ def run_study(study: CommandConfig, out: Path | None = None) -> None:
         return
     from vcsumo.cli.junction import junction_cmd
     from vcsumo.cli.safety import safety_cmd
+    from vcsumo.cli.tradeoff import tradeoff_cmd
 
-    command = junction_cmd if isinstance(study, JunctionStudy) else safety_cmd
+    command = junction_cmd if isinstance(study, JunctionStudy) else tradeoff_cmd if isinstance(study, TradeoffStudy) else safety_cmd
     with recording(study.recorded_inputs()):
         click.get_current_context().invoke(command, **study.command_values())  # type: ignore[attr-defined]
