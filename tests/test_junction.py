@@ -80,7 +80,8 @@ def test_bad_junction_input_names_the_file_and_field(tmp_path):
     with pytest.raises(InputError) as e:
         resolve_junctions(mibo, "bivio_nowhere")
     msg = str(e.value)
-    assert str(mibo.path) in msg and "branches" in msg and "bivio_nowhere" in msg and "venezia" in msg
+    # the request's error (the option, or the study file's field), naming the line file whose branches it lists
+    assert "--junction" in msg and str(mibo.path) in msg and "bivio_nowhere" in msg and "venezia" in msg
     felez = load_line("felez_test")
     with pytest.raises(InputError) as e:
         resolve_junctions(felez, None)
@@ -225,7 +226,7 @@ def test_junction_study_file_runs_the_command(in_tmp, capsys, root):
     f = write(in_tmp / "j.yaml", "study: junction\nline: milano_bologna\njunction: bivio_nowhere\nout: res\n")
     assert main(["study", "run", str(f)]) == 2
     err = capsys.readouterr().err
-    assert "line.yaml" in err and "branches" in err and "bivio_nowhere" in err
+    assert str(f) in err and "junction:" in err and "line.yaml" in err and "branches" in err and "bivio_nowhere" in err
     assert not (in_tmp / "res").exists() and not list(in_tmp.glob("res*"))
     # an unknown key in the study file
     f = write(in_tmp / "k.yaml", "study: junction\nline: firenze_bologna\njunction_sigal: sumo\n")

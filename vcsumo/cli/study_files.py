@@ -92,7 +92,7 @@ class JunctionStudy(StudyFile, CommandConfig):
         if self.junction:
             from vcsumo.studies.junction import resolve_junctions
 
-            resolve_junctions(line, self.junction)
+            resolve_junctions(line, self.junction, self.source, "junction")
 
     def command_values(self) -> dict[str, Any]:
         """The values of ``vcsumo study junction``'s parameters."""

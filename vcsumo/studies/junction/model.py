@@ -76,8 +76,9 @@ def default_junctions(line: Line) -> list[str]:
     return [brs[0].id]
 
 
-def resolve_junctions(line: Line, spec: list[str] | str | None) -> list[str]:
-    """Branch ids to study ('all', a list, or None for the default); errors name the file and field."""
+def resolve_junctions(line: Line, spec: list[str] | str | None, path: str | Path | None = None, field: str = "--junction") -> list[str]:
+    """Branch ids to study ('all', a list, or None for the default). A line without branches is the line
+    file's error; an unknown id is the request's: named by ``path`` (the study file) and ``field``."""
     if not line.data.branches:
         raise InputError(line.path, "branches", "the line has no branches: the junction study needs at least one junction (a branch's junction_km)")
     ids = [b.id for b in line.data.branches]
@@ -89,7 +90,7 @@ def resolve_junctions(line: Line, spec: list[str] | str | None) -> list[str]:
     for s in items:
         sid = s.removeprefix("branch:")
         if sid not in ids:
-            raise InputError(line.path, "branches", f"unknown junction '{s}' (--junction takes a branch id: {', '.join(ids)}, or 'all')")
+            raise InputError(path, field, f"unknown junction '{s}' (the branches of {line.path}: {', '.join(ids)}, or 'all')")
     return [s.removeprefix("branch:") for s in items]
 
 
