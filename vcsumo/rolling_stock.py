@@ -186,6 +186,36 @@ class RollingStock(StrictModel):
         )
 
 
+    def vtype_variant(self, tag: str, true_params: TrainParams) -> "RollingStock":
+        """This train with a SUMO vType of its own that carries drawn ("true") parameters.
+
+        The copy is named ``<name>_<tag>`` (so each variant gets its own vType ids in a route file)
+        and its model — every field vcsumo's controllers, supervisors, braking curves and run-health
+        monitor read — stays this train's nominal one; only :meth:`vtype_xml` writes ``true_params``
+        (mass, resistance, traction, power, service and emergency deceleration): SUMO then runs the
+        train as it really is while everything on board plans with the nominal model and its box.
+        """
+        if not tag or not all(c.isalnum() or c == "_" for c in tag) or tag.lower() != tag:
+            raise ValueError(f"vType variant tag '{tag}' must be lower-case letters, digits and _")
+        true = self.model_copy(update={
+            "name": f"{self.name}_{tag}", "mass_kg": true_params.mass_kg, "davis_a_n": true_params.davis_a_n,
+            "davis_b_n_per_mps": true_params.davis_b_n_per_mps, "davis_c_n_per_mps2": true_params.davis_c_n_per_mps2,
+            "max_traction_n": true_params.max_traction_n, "max_power_w": true_params.max_power_w,
+            "service_brake_decel_mps2": true_params.service_brake_decel_mps2,
+            "emergency_brake_decel_mps2": max(true_params.emergency_brake_decel_mps2, true_params.service_brake_decel_mps2),
+        })
+        return _VTypeVariant(**{**self.__dict__, "name": true.name}, true_stock=true)
+
+
+class _VTypeVariant(RollingStock):
+    """A rolling stock whose SUMO vType is another's (:meth:`RollingStock.vtype_variant`)."""
+
+    true_stock: RollingStock = Field(description="The train as SUMO runs it (its vType)")
+
+    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail") -> str:
+        return self.true_stock.vtype_xml(tunnel_factor, vclass)
+
+
 def rolling_stock_dir() -> Path:
     return project_root() / "networks" / "rolling_stock"
 

@@ -43,12 +43,11 @@ from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Observation
-from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance
+from vcsumo.dynamics import acceleration, brake_force_limit, gradient_force, running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.assumptions import load_assumptions
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, leader_worst_state
-from vcsumo.units import G
 
 
 class GuardConfig(StrictModel):
@@ -63,40 +62,6 @@ def load_guard(spec: str | Path | None = None, field: str | None = "--guard", ba
     from vcsumo.control.params import resolve_params
 
     return load_model(GuardConfig, resolve_params(spec, "guard", field, base_dir, kind="guard"))
-
-
-# -------------------------------------------------------------------------------------------
-# The maths (one place)
-
-
-def guard_speed(s_f_m: float, b_f_mps2: float, dt_s: float, s_l_m: float, v_l_mps: float, leader_length_m: float, a_l_mps2: float, d_min_m: float) -> float:
-    """Highest follower speed for the next step that keeps the relative braking distance, m/s.
-
-    Worst case for the predecessor: braking at ``a_l`` from the state (s_l, v_l) it was last known
-    in — sensed now or communicated earlier; the stopping point s_l + v_l²/(2·a_l) is the same
-    whenever after that moment the braking started, so old information is still a valid bound.
-    The follower runs one step (Δt) at the commanded speed v and then brakes at ``b_f`` with
-    SUMO's semi-implicit Euler update, which covers v²/(2·b_f) + ½·v·Δt:
-    1.5·v·Δt + v²/(2·b_f) ≤ s_l + v_l²/(2·a_l) − L_l − d_min − s_f.
-    """
-    stop_l = s_l_m + v_l_mps * v_l_mps / (2.0 * a_l_mps2)
-    room = stop_l - leader_length_m - d_min_m - s_f_m
-    if room <= 0.0:
-        return 0.0
-    k = 1.5 * dt_s
-    return b_f_mps2 * (-k + math.sqrt(k * k + 2.0 * room / b_f_mps2))
-
-
-def guaranteed_decel(p: TrainParams, v_mps: float, decel_mps2: float, grad_low: float) -> float:
-    """Deceleration a train certainly reaches braking with force M·decel (eq. 1b): resistance at
-    least A, gradient at worst the steepest downhill ahead, m/s²."""
-    return (p.mass_kg * decel_mps2 + p.davis_a_n + p.mass_kg * G * min(grad_low, 0.0)) / (p.mass_kg * p.rotating_mass_factor)
-
-
-def strongest_decel(p: TrainParams, v_mps: float, decel_mps2: float, grad_high: float, tunnel_factor: float = 1.0) -> float:
-    """Hardest deceleration a train may show braking with force M·decel at speed v (eq. 1b):
-    its resistance at v and the steepest uphill ahead help it, m/s²."""
-    return (p.mass_kg * decel_mps2 + float(running_resistance(p, v_mps, tunnel_factor)) + p.mass_kg * G * max(grad_high, 0.0)) / p.mass_kg
 
 
 @dataclass(frozen=True)
@@ -217,5 +182,4 @@ class SeparationGuard:
         return replace(cmd, force_n=force, emergency=emergency, info={**cmd.info, "guard_speed_mps": v_guard})
 
 
-__all__ = ["GuardConfig", "load_guard", "guard_speed", "guaranteed_decel", "strongest_decel", "PredecessorEstimate", "predecessor_estimate",
-           "SeparationGuard"]
+__all__ = ["GuardConfig", "load_guard", "PredecessorEstimate", "predecessor_estimate", "SeparationGuard"]

@@ -27,7 +27,6 @@ folder, so no half-written results remain.
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import time
@@ -40,6 +39,7 @@ import pandas as pd
 
 from vcsumo.errors import SumoError, VcsumoError
 from vcsumo.line import Line
+from vcsumo.results import write_csv, write_json
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.regimes import REGIMES, Regime
 from vcsumo.signalling.separation import SeparationModel
@@ -83,6 +83,10 @@ class Snapshot:
     time_s: float
     step_s: float
     trains: dict[str, TrainState]
+    junction_authority_m: dict[str, float] = field(default_factory=dict)
+    """Distance from a convoy follower's front to the end of movement authority a merging junction
+    ahead sets (approach locking, :meth:`vcsumo.sim.interlocking.MergeLocking.authority_distance`
+    behind its predecessor), m; absent: none."""
 
 
 class Driver(Protocol):
@@ -216,7 +220,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     supervisor = locking = None
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
-        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders)
+        convoys = {t.id: scn.driver.predecessor_of(t.id) for t in scn.trains} if scn.driver is not None else {}
+        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
         supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
@@ -248,16 +253,21 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             caps: dict[str, float] = {}
             obs = {vid: sim.observe(vid) for vid in active}
             others = [(vid, o.edge, o.lane_pos_m, plans[vid].stock.length_m) for vid, o in obs.items()]
-            for vid in active:
-                tr = state[vid]
-                ob = obs[vid]
+            prev_pos = {}
+            for vid in active:  # every route position of this step first: the gap checks below read the train ahead's
+                tr, ob = state[vid], obs[vid]
                 prof = tr.plan.profile
-                prev_s = tr.s
+                prev_pos[vid] = tr.s
                 if not ob.edge.startswith(":") and 0 <= ob.route_index < len(prof.edges) and prof.edges[ob.route_index] == ob.edge:
                     tr.s = float(prof.starts_m[ob.route_index]) + ob.lane_pos_m
                     tr.sync_s, tr.sync_odo = tr.s, ob.odometer_m
                 else:
                     tr.s = tr.sync_s + (ob.odometer_m - tr.sync_odo)
+            for vid in active:
+                tr = state[vid]
+                ob = obs[vid]
+                prof = tr.plan.profile
+                prev_s = prev_pos[vid]
                 if math.isnan(tr.s):
                     continue
                 # tunnel drag: switch the vType when the front passes a portal
@@ -275,15 +285,17 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if lead is None and len(others) > 1:
                     lead = sim.route_leader(vid, others, scn.lookahead_m)
                 gap = lead[1] if lead else math.inf
-                if lead is not None and locking is not None and lead[0] in state:
-                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
-                    if g is not None:
-                        gap = g
-                tr.min_gap = min(tr.min_gap, gap)
                 controlled = tr.controlled and scn.driver is not None
                 if scn.driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
                     # before the driver's first decision a follower behind its own predecessor counts as coupled
                     controlled = scn.driver.predecessor_of(vid) == lead[0]
+                if lead is not None and locking is not None and lead[0] in state and not controlled:
+                    # absolute braking stops short of the fouling point; relative braking keeps to SUMO's gap to
+                    # the rear projected onto this route (the leader's body clears the junction as that rear moves on)
+                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
+                    if g is not None:
+                        gap = g
+                tr.min_gap = min(tr.min_gap, gap)
                 perm = None
                 if supervisor is not None:
                     supervisor.observe(vid, t, ob.odometer_m)
@@ -340,7 +352,14 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     capped.discard(vid)
             if scn.driver is not None:
                 t0 = time.perf_counter()
-                commands = scn.driver.make_step(Snapshot(t, dt, snap_trains))
+                ends = {}
+                if locking is not None:  # what the approach locking allows each convoy follower at the merges ahead
+                    for vid, ts in snap_trains.items():
+                        pred = scn.driver.predecessor_of(vid)
+                        d_ma = locking.authority_distance(vid, ts.s_m, coupled_to=pred) if pred is not None else math.inf
+                        if math.isfinite(d_ma):
+                            ends[vid] = d_ma
+                commands = scn.driver.make_step(Snapshot(t, dt, snap_trains, ends))
                 timing["controller_s"] += time.perf_counter() - t0
                 for vid in scn.driver.stop_releases():
                     sim.resume(vid)
@@ -478,10 +497,10 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthM
     if scn.full_outputs:
         traj.to_csv(out / "trajectories.csv", index=False)
     passages.to_csv(out / "passages.csv", index=False)
-    stops.to_csv(out / "stop_events.csv", index=False)
-    trains_df.to_csv(out / "summary.csv", index=False)
+    write_csv(stops, out / "stop_events.csv")
+    write_csv(trains_df, out / "summary.csv")
     io = time.perf_counter() - t_io
     summary["io_time_s"] = round(io, 3)
     summary["wall_time_s"] = round(wall + io, 3)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(out / "summary.json", summary)
     return SimulationResult(traj, passages, stops, trains_df, summary)

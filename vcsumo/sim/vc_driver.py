@@ -46,7 +46,6 @@ e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part reads ``controller
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -67,7 +66,9 @@ from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError
+from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
+from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
 from vcsumo.timetable import PlannedTrain, TimetableFile
 
@@ -208,8 +209,10 @@ class VCDriver:
 
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
                  cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
-                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None):
+                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None,
+                 junction: JunctionPolicy | None = None):
         self.name, self.params_spec = parse_controller(controller)
+        self.junction = junction  # link handshake, braking curves to lower limits and to the end of authority at merges
         self.assumptions = assumptions or load_assumptions()
         self.model = SeparationModel(self.assumptions)
         self.step_s = step_s
@@ -315,6 +318,7 @@ class VCDriver:
 
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
+        whole, snap = snap, (self.junction.visible(snap) if self.junction is not None else snap)
         self._send(snap)
         t = snap.time_s
         commands: dict[str, float] = {}
@@ -435,7 +439,15 @@ class VCDriver:
                     "barrier_true_m": cmd.info.get("cbf_true_barrier_m"), "barrier_robust_m": cmd.info.get("cbf_robust_barrier_m"),
                     "speed_nominal_mps": v_nominal, "speed_guard_mps": v_guard, "speed_command_mps": v_next,
                 })
+        if self.junction is not None:
+            commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands
+
+    def coupled_spacing_m(self, train_id: str, v_mps: float) -> float:
+        """The spacing a follower's stack keeps behind its predecessor at a common speed v: its
+        controller's coupled gap, at least its minimum safe gap (with a CBF: the safety distance d), m."""
+        f = self.followers[train_id]
+        return max(f.stack.coupled_gap_m(v_mps), f.d_min)
 
     # -----------------------------------------------------------------------------------
     def predecessor_of(self, train_id: str) -> str | None:
@@ -476,7 +488,7 @@ class VCDriver:
                         "emergency_activations": f.emergency_episodes, "supervisor_interventions": f.interventions, "guard_interventions": f.guard_interventions,
                         "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes,
                         "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps})
-        (out / "vc_summary.json").write_text(json.dumps({"summary": self.summary(), "followers": per}, indent=2, default=str))
+        write_json(out / "vc_summary.json", {"summary": self.summary(), "followers": per})
 
 
 def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,

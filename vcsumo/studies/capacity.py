@@ -178,6 +178,11 @@ def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float
                           stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
 
 
+def check_position_m(setup: RouteSetup) -> float:
+    """Where a case's headway is checked (measuring point of the runs, end of the analytic maximum), m."""
+    return setup.full.length_m - 100.0
+
+
 def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,
                      s_check: float):
     """The regime's minimum headway between two units from the separation model alone
@@ -213,7 +218,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     model = SeparationModel(assumptions)
     dt = vc_step_s if case.regime == "vc" else step_s
     run = leader_run(setup, stock, case, dt, model)
-    s_check = setup.full.length_m - 100.0
+    s_check = check_position_m(setup)
     init_gap = _initial_gap(model, stock, setup.v0) if case.convoy_size > 1 else 0.0
     theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check)
     guess = theory.headway_s
