@@ -165,16 +165,18 @@ class RollingStock(StrictModel):
         """SUMO vType id; tunnels use a variant with the aerodynamic term scaled (see vtype_xml)."""
         return self.name if abs(tunnel_factor - 1.0) < 1e-9 else f"{self.name}@tf{tunnel_factor:.2f}"
 
-    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail") -> str:
+    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail", min_gap_m: float = 5.0) -> str:
         """The SUMO vType element (Rail model, custom train type).
 
         SUMO's units: maxPower kW, maxTraction kN, resCoef_* kN, kN/(m/s), kN/(m/s)²; mass kg.
         SUMO plans braking with ``decel`` and may brake up to ``decel + R(v)/(M·mf)``; see the
-        README (physics) for the gaps between SUMO's Rail model and eq. 1–5.
+        README (physics) for the gaps between SUMO's Rail model and eq. 1–5.  ``min_gap_m``: the gap
+        SUMO leaves behind a standing train (a convoy follower berths that far behind its leader in
+        a shared platform; the runs set it to the separation model's margin and position errors).
         """
         return (
             f'<vType id="{self.vtype_id(tunnel_factor)}" vClass="{vclass}" carFollowModel="Rail" trainType="custom" '
-            f'length="{self.length_m:.3f}" minGap="5" maxSpeed="{self.max_speed_ms:.4f}" '
+            f'length="{self.length_m:.3f}" minGap="{min_gap_m:.3f}" maxSpeed="{self.max_speed_ms:.4f}" '
             f'mass="{self.mass_kg:.1f}" massFactor="{self.rotating_mass_factor:.4f}" '
             f'maxPower="{self.max_power_w / 1000:.4f}" maxTraction="{self.max_traction_n / 1000:.4f}" '
             f'resCoef_constant="{self.davis_a_n / 1000:.6f}" resCoef_linear="{self.davis_b_n_per_mps / 1000:.8f}" '

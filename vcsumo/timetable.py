@@ -413,14 +413,14 @@ own length, if longer) of the end, m: braking-curve supervision stops it its pos
 the end (10 m under etcs_typical), so SUMO's stop there spans this window."""
 
 
-def routes_xml(trains: list[PlannedTrain], topo: Topology) -> str:
+def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.0) -> str:
     """SUMO route file: vTypes (open-air and tunnel variants) and vehicles sorted by departure."""
     factors = sorted({e.tunnel_factor for e in topo.edges.values()})
     stocks = {t.stock.name: t.stock for t in trains}
     out = ["<routes>"]
     for st in stocks.values():
         for tf in factors:
-            out.append("  " + st.vtype_xml(tf))
+            out.append("  " + st.vtype_xml(tf, min_gap_m=min_gap_m))
     for t in sorted(trains, key=lambda x: x.depart_s):  # stable: equal times keep planning order (convoy leader first)
         first_tf = topo.edges[t.edges[0]].tunnel_factor
         speed = "0" if t.depart_speed_mps <= 0 else f"{t.depart_speed_mps:.4f}"

@@ -24,7 +24,9 @@ brake (bottom of its box, descents) after the dead time (reaction + half the bra
 largest that keeps margin + the position errors of both trains (+ the stack's d_min beyond that)
 between them at every moment (also when the follower brakes harder than the predecessor can).
 Approaching its own stop (``Observation.next_stop_m``) the follower keeps to its guaranteed
-service-brake curve to the stop point.
+service-brake curve to the stop point, and everywhere to the line's permitted speed: the limit under
+the whole train and the guaranteed service-brake curve to every lower limit ahead (the same curves
+the supervision gives the trains SUMO drives).
 
 By default the guard trusts only what the channel delivered (:class:`GuardConfig` ``sensor``: an
 on-board sensor of the train ahead — SUMO's exact gap and speed within its look-ahead, no error
@@ -113,6 +115,7 @@ class SeparationGuard:
         self.last_speed_mps = math.nan
         self.last_force_in_n = math.nan
         self._rules: dict[int, tuple] = {}
+        self._targets: dict[int, list] = {}
 
     def _rule(self, profile: RouteProfile) -> tuple[RelativeBraking, RouteBraking]:
         r = self._rules.get(id(profile))
@@ -137,7 +140,25 @@ class SeparationGuard:
             v_guard = rule.max_speed(s, gap, s_l, v_l, dead, v_max)
         if obs.next_stop_m is not None:  # its own stop: the guaranteed service-brake curve to it
             v_guard = min(v_guard, service.permitted_speed(s, obs.next_stop_m, 0.0, 1.5 * dt, obs.ego.speed_mps))
-        return v_guard
+        return min(v_guard, self.limit_speed(obs, service))
+
+    def limit_speed(self, obs: Observation, service: RouteBraking) -> float:
+        """The permitted speed of the line: the limit under the whole train now, and the guaranteed
+        service-brake curve to every lower limit ahead (as the supervision of SUMO-driven trains), m/s."""
+        prof, s, v, dt = obs.profile, obs.ego.position_m, obs.ego.speed_mps, obs.step_s
+        v_perm = min(prof.speed_limit_train(s, self.follower.length_m), self.follower.max_speed_ms)
+        targets = self._targets.get(id(prof))
+        if targets is None:
+            targets = self._targets = {id(prof): prof.restriction_targets()}
+            targets = self._targets[id(prof)]
+        reach = service.stopping_distance(s, v, 2.0 * dt) + 50.0
+        for s_t, v_t in targets:
+            if s_t <= s:
+                continue
+            if s_t - s > reach:
+                break
+            v_perm = min(v_perm, service.permitted_speed(s, s_t, v_t, 1.5 * dt, v))
+        return v_perm
 
     def limit(self, obs: Observation, cmd: Command) -> Command:
         p, prof = obs.params, obs.profile

@@ -100,6 +100,10 @@ class Driver(Protocol):
         """The train a follower is coupled behind (None: not a convoy follower)."""
         ...
 
+    def stop_releases(self) -> set[str]:
+        """Trains whose stop (dwell) ends now, e.g. a follower leaving with its convoy."""
+        ...
+
 
 @dataclass
 class Scenario:
@@ -185,7 +189,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     shutil.copy2(scn.network.net_file, netdir / "line.net.xml")
     shutil.copy2(scn.network.stations_file, netdir / "stations.add.xml")
     topo = scn.network.topology
-    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo))
+    # SUMO leaves the separation model's margin and position errors behind a standing train (a convoy
+    # follower berths that far behind its leader in a shared platform)
+    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo, SeparationModel(scn.assumptions).margin_m))
     begin = math.floor(min(t.depart_s for t in scn.trains))
     if scn.end_time_s is not None:
         end = scn.end_time_s
@@ -302,7 +308,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if health.update(vid, dt, tr.s, ob.speed_mps, ob.accel_mps2, gap, required, perm.authority_m if perm else math.inf, not controlled):
                     sec, km_v = prof.km_at(tr.s)  # the gap just fell below the safe separation
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), ob.speed_mps, gap, required, controlled))
-                if perm is not None and perm.speed_mps < ob.speed_mps + 2.0:
+                # a standing train is left to SUMO (commanding it to move would abort its stop); the
+                # cap takes it from the step it moves
+                if perm is not None and perm.speed_mps < ob.speed_mps + 2.0 and not (ob.speed_mps < 0.01 and perm.speed_mps > 0.0):
                     caps[vid] = perm.speed_mps
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))
@@ -353,6 +361,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                             ends[vid] = d_ma
                 commands = scn.driver.make_step(Snapshot(t, dt, snap_trains, ends))
                 timing["controller_s"] += time.perf_counter() - t0
+                for vid in scn.driver.stop_releases():
+                    sim.resume(vid)
                 for vid, v_cmd in commands.items():
                     tr = state.get(vid)
                     if tr is None:

@@ -191,6 +191,8 @@ class _Follower:
     """The link to the predecessor is up (set at the first step both run)."""
     braking: RouteBraking | None = None
     """The follower's guaranteed braking on its route under the absolute rule (stop hand-over)."""
+    stood_since_s: float = math.nan
+    """Since when it stands at a shared stop behind its predecessor, s."""
 
     @property
     def stage(self):
@@ -257,6 +259,8 @@ class VCDriver:
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
         arrange_convoy_departures(convoys, {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}, self.model)
+        self.aligned_stops = align_convoy_stops(convoys)
+        self.releases: set[str] = set()
 
     # -----------------------------------------------------------------------------------
     def _send(self, snap: Snapshot) -> None:
@@ -306,6 +310,11 @@ class VCDriver:
         self._plans[tid] = (times, pos, spd, frc, complete)
         keep = times <= t + self.plan_horizon_s + 1e-9
         return times[keep], pos[keep], spd[keep], frc[keep]
+
+    def stop_releases(self) -> set[str]:
+        """Followers whose stop ends now (their convoy leaves the shared platform); cleared on reading."""
+        out, self.releases = self.releases, set()
+        return out
 
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
@@ -362,6 +371,16 @@ class VCDriver:
                         f.stop_handovers += 1
                     f.at_stop = True
                     coupled = False
+                # the convoy leaves a shared platform together: once the follower stands at its stop
+                # behind its predecessor and the predecessor moves off, the follower's dwell ends too
+                if f.at_stop and in_platform and v < 0.01:
+                    if math.isnan(f.stood_since_s):
+                        f.stood_since_s = t
+                    elif t - f.stood_since_s >= MIN_CONVOY_DWELL_S and pst.speed_mps > 0.1:
+                        self.releases.add(fid)
+                        f.stood_since_s = math.nan
+                else:
+                    f.stood_since_s = math.nan
             if not coupled:
                 if f.coupled:
                     f.released_at_s = t
@@ -501,6 +520,31 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
                                  stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
             clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
             ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
+
+
+MIN_CONVOY_DWELL_S = 5.0
+"""A follower released from a shared stop with its leader has stood there at least this long, s."""
+
+
+def align_convoy_stops(convoys: list[list[PlannedTrain]], window_s: float = 300.0) -> dict[str, int]:
+    """A convoy leaves a station it stops at together: a follower's scheduled departure from a station
+    its predecessor also stops at is brought forward to the predecessor's when it is at most
+    ``window_s`` later (a timetable written "follower 30 s behind" would otherwise keep it 30 s
+    behind for ever: it cannot run faster than its leader at the line speed).  Returns the number
+    of departures moved per follower."""
+    moved: dict[str, int] = {}
+    for members in convoys:
+        for k in range(1, len(members)):
+            ego, ahead = members[k], members[k - 1]
+            dep = {x.station: x.departure_s for x in ahead.stops if x.departure_s is not None}
+            n = 0
+            for x in ego.stops:
+                d = dep.get(x.station)
+                if d is not None and x.departure_s is not None and 0.0 < x.departure_s - d <= window_s:
+                    x.departure_s = d
+                    n += 1
+            moved[ego.id] = n
+    return moved
 
 
 def make_vc_driver(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain], controller: str, step_s: float, seed: int = 42,
