@@ -223,6 +223,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         convoys = {t.id: scn.driver.predecessor_of(t.id) for t in scn.trains} if scn.driver is not None else {}
         locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
         supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
+    step_gain = {t.id: t.stock.max_traction_n / t.stock.mass_kg * dt for t in scn.trains}  # most speed one step adds from standstill, m/s
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
     capped: set[str] = set()
@@ -308,9 +309,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if health.update(vid, dt, tr.s, ob.speed_mps, ob.accel_mps2, gap, required, perm.authority_m if perm else math.inf, not controlled):
                     sec, km_v = prof.km_at(tr.s)  # the gap just fell below the safe separation
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), ob.speed_mps, gap, required, controlled))
-                # a standing train is left to SUMO (commanding it to move would abort its stop); the
-                # cap takes it from the step it moves
-                if perm is not None and perm.speed_mps < ob.speed_mps + 2.0 and not (ob.speed_mps < 0.01 and perm.speed_mps > 0.0):
+                # a standing train is left to SUMO (commanding it to move would abort its stop) unless
+                # one step of its starting acceleration could take it past its permitted speed
+                if perm is not None and perm.speed_mps < ob.speed_mps + 2.0 and not (ob.speed_mps < 0.01 and perm.speed_mps > step_gain[vid]):
                     caps[vid] = perm.speed_mps
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))

@@ -183,15 +183,28 @@ class SumoBackend:
         """
         best: tuple[str, float] | None = None
         for oid, edge, pos, length in others:
-            if oid == vid or edge.startswith(":"):
+            if oid == vid:
                 continue
-            d = self.driving_distance(vid, edge, pos)
+            d = self.internal_distance(vid, oid, pos) if edge.startswith(":") else self.driving_distance(vid, edge, pos)
             if d is None or d <= 0.0:
                 continue
             gap = d - length
             if gap <= lookahead_m and (best is None or gap < best[1]):
                 best = (oid, gap)
         return best
+
+    @_traci
+    def internal_distance(self, vid: str, oid: str, pos: float) -> float | None:
+        """Driving distance from ``vid`` to a train whose front is ``pos`` into a junction's internal
+        lane: to the end of the route edge it is leaving, plus ``pos`` (a train crossing a junction
+        stays the train ahead: its rear is still on the edges behind), m."""
+        ls = self._ls.vehicle
+        i = ls.getRouteIndex(oid)
+        if i < 0:
+            return None
+        edge = ls.getRoute(oid)[i]
+        d = self.driving_distance(vid, edge, self._ls.lane.getLength(f"{edge}_0"))
+        return None if d is None else d + pos
 
     @_traci
     def driving_distance(self, vid: str, edge: str, pos: float) -> float | None:
