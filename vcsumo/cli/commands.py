@@ -210,8 +210,8 @@ def capacity(cfg: CapacityConfig) -> None:
         if shown:
             prog.stop()
     print_table(df, f"capacity — {line.name} ({stock.name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
-                "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"],
-                csv_path=out / "capacity.csv", drop_first=["headway_analytic_s", "intra_convoy_gap_m", "min_gap_m"])
+                "headway_analytic_s", "intra_convoy_gap_m", "convoy_formed", "capacity_trains_per_h", "gain_vs_fbs", "healthy", "min_margin_m"],
+                csv_path=out / "capacity.csv", drop_first=["headway_analytic_s", "intra_convoy_gap_m", "min_margin_m", "convoy_formed"])
     failed = df[df.error.astype(str) != ""]  # listed with their errors under the table
     if df.attrs.get("resumed_cases"):
         out_console.print(f"{df.attrs['new_cases']} cases run now, {df.attrs['resumed_cases']} already in {out / 'capacity_cases.csv'}")
