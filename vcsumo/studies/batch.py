@@ -31,7 +31,7 @@ Metrics of a run (``BATCH_COLUMNS``; times in s):
 
 * arrival delay of a train = actual arrival at its destination − its *reference arrival*: the
   scheduled arrival, or, for a train without one, its scheduled departure + its unhindered
-  running time (:func:`vcsumo.signalling.uic406.reference_arrivals`: unhindered run, scheduled stops
+  running time (:func:`vcsumo.signalling.scheduled_run.reference_arrivals`: unhindered run, scheduled stops
   honoured);
 * ``punctuality_3min_share`` / ``punctuality_5min_share``: share of the run's trains that arrived
   with an arrival delay ≤ 180 s / 300 s (trains that never arrived count as late);
@@ -169,7 +169,7 @@ def _run(spec: RunSpec) -> dict:
     from vcsumo.sim.network import build_network
     from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import load_timetable, plan_trains
-    from vcsumo.signalling.uic406 import reference_arrivals
+    from vcsumo.signalling.scheduled_run import reference_arrivals
 
     line = load_line_or_network(spec.line_path)
     tt_path = Path(spec.timetable_path)
@@ -364,7 +364,7 @@ def _uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, ste
             continue  # the runs fail with the same error
         cache: dict = {}
         for regime in sorted(regimes):
-            df = capacity_consumption(line, net, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache)
+            df = capacity_consumption(line, net.topology, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache)
             df.insert(0, "timetable", spec.timetable)
             df.insert(1, "timetable_sha256", sha)
             df.insert(3, "step_length_s", step_length_s)
