@@ -68,10 +68,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vcsumo.control.base import Command, Message, Observation
-from vcsumo.control.dp_profile import RouteLookup, SpeedProfile, TerminalSet, dp_speed_profile, terminal_set
+from vcsumo.control.dp_profile import SpeedProfile, dp_speed_profile
+from vcsumo.control.mpc_terminal import TerminalSet, terminal_set
 from vcsumo.control.mpc_settings import DPModel, MPCSettings, load_mpc_settings
 from vcsumo.control.mpc_solver import CondensedNMPC, MPCSolution
 from vcsumo.control.predictors import LeaderPrediction, np_state_now, predict_mb, predict_np, predict_sh_from_plan
+from vcsumo.control.route_lookup import RouteLookup
 from vcsumo.dynamics import TrainParams, brake_force_limit
 from vcsumo.route_profile import RouteProfile
 

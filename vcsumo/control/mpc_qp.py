@@ -20,9 +20,9 @@ import sys
 
 import numpy as np
 
-from vcsumo.control.dp_profile import RouteLookup
 from vcsumo.control.mpc_settings import MPCSettings
 from vcsumo.control.predictors import lag_alpha, model_step
+from vcsumo.control.route_lookup import RouteLookup
 from vcsumo.dynamics import TrainParams
 
 

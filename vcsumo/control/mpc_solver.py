@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vcsumo.control.dp_profile import RouteLookup
 from vcsumo.control.mpc_qp import CondensedQP
 from vcsumo.control.predictors import LeaderPrediction
+from vcsumo.control.route_lookup import RouteLookup
 from vcsumo.dynamics import brake_force_limit
 
 
@@ -82,7 +82,7 @@ class CondensedNMPC(CondensedQP):
         :meth:`MPCSolution.warm_start` of the previous step; None: hold the current force);
         ``lookup`` gives gradient, tunnel factor and v_lim(s) (None: level track, limit from
         ``v_limit_fn`` or unlimited); ``terminal`` the terminal set (a
-        :class:`~vcsumo.control.dp_profile.TerminalSet` or :class:`SpeedProfile`; None: no
+        :class:`~vcsumo.control.mpc_terminal.TerminalSet` or :class:`SpeedProfile`; None: no
         terminal speed bound); ``v_ref_mps`` scalar or N-vector: v_max of 11a (leader; a follower
         tracks ``leader.speeds_mps``, 12b); ``v_scale_mps`` the v_max normalising 11a/12b.
         ``max_iterations`` given: iterate the SQP to convergence (at most that many iterations);
