@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from vcsumo.control.base import Message, Observation, TrainStateMsg
-from vcsumo.control.dp_profile import straight_route_profile
+from vcsumo.control.route_lookup import straight_route_profile
 from vcsumo.control.mpc import FollowerMPC, LeaderMPC
 from vcsumo.plant import PlantState, TrainPlant
 from vcsumo.reproduce.felez2019 import load_scenario, run_felez2019

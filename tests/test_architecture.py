@@ -69,7 +69,6 @@ def _imports(mod: str, path: Path, mods: dict[str, Path]) -> list[tuple[str, lis
     return out
 
 
-@IN_PROGRESS
 def test_no_module_imports_from_a_higher_floor():
     mods = _modules()
     bad = [f"{m} (floor {_floor(m)}) imports {t} (floor {_floor(t)}) at line {ln}"
