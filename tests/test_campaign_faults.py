@@ -99,11 +99,11 @@ def test_a_killed_capacity_study_resumes_only_its_missing_cases(tmp_path):
         proc.kill()
     stale = partials(out)
     assert stale and not (out / "capacity.csv").exists()
-    before = pd.read_csv(out / "capacity_cases.csv")
+    before = pd.read_csv(out / "capacity_cases.csv", dtype=str, keep_default_na=False)  # the cells as written
     assert 1 <= len(before) < 4  # of fbs, mb, vc n=2, vc n=3 (vc n=1 repeats mb)
     assert main([*CAPACITY, "--workers", "2", "--out", str(out)]) == 0
     assert not partials(out)
-    cases = pd.read_csv(out / "capacity_cases.csv")
+    cases = pd.read_csv(out / "capacity_cases.csv", dtype=str, keep_default_na=False)
     assert len(cases) == 4 and cases.case_key.is_unique
     # the rows found finished are not run again
     pd.testing.assert_frame_equal(cases.iloc[: len(before)].reset_index(drop=True), before)
