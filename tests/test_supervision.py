@@ -94,3 +94,28 @@ def test_moving_block_follower_stops_behind_a_train_standing_on_a_descent(tmp_pa
     # safe separation, and both are counted
     alone = simulate(Scenario(line, net, trains, "mb", supervise=False), tmp_path / "alone").summary
     assert alone["stops_skipped"] >= 1 and alone["gap_violations"] >= 1 and alone["min_margin_m"] < -100
+
+
+def test_a_train_standing_in_its_platform_behind_another_has_served_its_stop(line_factory, network_factory):
+    """A convoy follower stands in the platform behind its leader (SUMO serves the stop there); the
+    supervision then no longer brakes it to the platform's end after the convoy leaves (regional_graded
+    all-stops VC capacity: the follower crept 146 m at 0.08 m/s and fell 2 km behind its leader)."""
+    from vcsumo.signalling.assumptions import load_assumptions
+    from vcsumo.signalling.separation import SeparationModel
+    from vcsumo.sim.supervision import BrakingCurveSupervisor
+    from vcsumo.timetable import load_timetable, plan_trains
+
+    line = line_factory("regional_graded")
+    tt, p = load_timetable("all_stations", line)
+    t = next(x for x in plan_trains(tt, p, line, network_factory("regional_graded").topology) if len(x.stops) >= 2)
+    stop = t.stops[0]
+    assert stop.platform_length_m > 0
+    sup = BrakingCurveSupervisor(SeparationModel(load_assumptions()), "mb", [t], 0.5)
+    before = stop.s_m - stop.platform_length_m - 5.0
+    sup.permitted(t.id, 0.0, before, 0.0)  # standing short of the platform (held at a signal): still its stop
+    assert sup.curves[t.id].next_stop == 0 and sup.permitted(t.id, 0.5, before, 20.0).reason == "stop"
+    inside = stop.s_m - 0.5 * stop.platform_length_m
+    assert sup.permitted(t.id, 1.0, inside, 15.0).reason == "stop"  # running in the platform: still braking for it
+    sup.permitted(t.id, 1.5, inside, 0.0)  # standing in it
+    assert sup.curves[t.id].next_stop == 1
+    assert sup.permitted(t.id, 2.0, inside + 0.5, 1.0).reason != "stop" or t.stops[1].s_m - inside < 500.0

@@ -71,6 +71,8 @@ class _Curves:
     signals: list[float]
     braking: RouteBraking
     next_stop: int = 0
+    platform_from: list[float] = field(default_factory=list)
+    """Where each stop's platform begins (the stop's position less the platform's length), m."""
     first_seen_s: float = math.nan
     odo_m: float = 0.0
     history_t: deque = field(default_factory=deque)
@@ -104,9 +106,11 @@ class BrakingCurveSupervisor:
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
         for t in trains:
-            stops = [x.s_m for x in t.stops]
+            at = [(x.s_m, x.platform_length_m) for x in t.stops]
             if t.final_stop is not None:
-                stops.append(t.final_stop.s_m)
+                at.append((t.final_stop.s_m, t.final_stop.platform_length_m))
+            at.sort()
+            stops = [x for x, _ in at]
             end_s = None
             if t.final_stop is None and t.stop_at_end:
                 end_s = t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m)
@@ -116,7 +120,8 @@ class BrakingCurveSupervisor:
                 g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
                 raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
                                   f"({1000 * g_low:.1f} ‰) under the assumption set '{model.assumptions.name}'") from None
-            self.curves[t.id] = _Curves(t, t.profile.restriction_targets(), sorted(stops), end_s, sorted((signals or {}).get(t.id, [])), braking)
+            self.curves[t.id] = _Curves(t, t.profile.restriction_targets(), stops, end_s, sorted((signals or {}).get(t.id, [])), braking,
+                                        platform_from=[x - max(length, 0.0) if length > 0 else x for x, length in at])
 
     # ------------------------------------------------------------------------------------------
     def observe(self, train_id: str, time_s: float, odometer_m: float) -> None:
@@ -199,8 +204,12 @@ class BrakingCurveSupervisor:
             vp = br.permitted_speed(s_m, s_t, v_t, 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "limit"
-        while c.next_stop < len(c.stops) and (c.stops[c.next_stop] < s_m - 1.0 or (c.stops[c.next_stop] < s_m + STOP_REACHED_M and v_mps < 0.05)):
-            c.next_stop += 1  # passed, or standing at it (SUMO holds the train for its dwell)
+        while c.next_stop < len(c.stops) and (c.stops[c.next_stop] < s_m - 1.0 or (c.stops[c.next_stop] < s_m + STOP_REACHED_M and v_mps < 0.05)
+                                              or (v_mps < 0.05 and c.platform_from[c.next_stop] <= s_m)):
+            # passed, standing at it (SUMO holds the train for its dwell), or standing in its platform
+            # behind a train stopped ahead in it (a convoy stands in the platform as one train; SUMO
+            # serves the stop there and does not run the follower on to the stopping point)
+            c.next_stop += 1
         if c.next_stop < len(c.stops):
             s_t = c.stops[c.next_stop]
             if s_t - s_m <= reach:
