@@ -76,7 +76,8 @@ class Channel:
         self._queue: list[_InFlight] = []
         self._seq = 0
         self._last_sent: dict[str, float] = {}
-        self._latest: dict[tuple[str, str], Message] = {}
+        self._latest: dict[str, dict[str, Message]] = {}
+        """receiver -> sender -> latest message delivered (indexed by receiver: a delivery reads only its own links)."""
         self.sent = 0
         self.lost = 0
         self.delivered = 0
@@ -123,30 +124,41 @@ class Channel:
             self._seq += 1
             heapq.heappush(self._queue, _InFlight(t + d, self._seq, (msg.sender, r), msg))
 
-    def deliver(self, receiver: str, t: float) -> dict[str, Message]:
-        """Latest message per sender delivered to ``receiver`` up to time t."""
-        while self._queue and self._queue[0].deliver_at <= t + 1e-9:
-            item = heapq.heappop(self._queue)
+    def advance(self, t: float) -> None:
+        """Deliver every message due by time t (to whichever receiver); :meth:`deliver` does this first."""
+        queue = self._queue
+        while queue and queue[0].deliver_at <= t + 1e-9:
+            item = heapq.heappop(queue)
             if any(w.start_s <= item.deliver_at < w.end_s for w in self.cfg.outages) or any(
                 w.start_s <= item.msg.sent_time_s < w.end_s for w in self.cfg.outages
             ):
                 self.lost += 1
                 continue
-            prev = self._latest.get(item.link)
+            sender, receiver = item.link
+            links = self._latest.get(receiver)
+            if links is None:
+                links = self._latest[receiver] = {}
+            prev = links.get(sender)
             if prev is None or prev.sent_time_s <= item.msg.sent_time_s:
-                self._latest[item.link] = replace(item.msg, received_time_s=item.deliver_at)
+                links[sender] = replace(item.msg, received_time_s=item.deliver_at)
                 self.delivered += 1
+
+    def deliver(self, receiver: str, t: float) -> dict[str, Message]:
+        """Latest message per sender delivered to ``receiver`` up to time t."""
+        self.advance(t)
         return self.latest(receiver)
 
     def remember(self, receiver: str, msg: Message) -> None:
         """Hold ``msg`` as delivered to ``receiver`` (a link already up when a run starts)."""
-        prev = self._latest.get((msg.sender, receiver))
+        links = self._latest.setdefault(receiver, {})
+        prev = links.get(msg.sender)
         if prev is None or prev.sent_time_s <= msg.sent_time_s:
-            self._latest[(msg.sender, receiver)] = msg
+            links[msg.sender] = msg
 
     def latest(self, receiver: str) -> dict[str, Message]:
         """Latest message per sender delivered to ``receiver`` so far (what the last :meth:`deliver` returned); delivers nothing."""
-        return {s: m for (s, r), m in self._latest.items() if r == receiver}
+        links = self._latest.get(receiver)
+        return dict(links) if links else {}
 
     @property
     def loss_ratio(self) -> float:

@@ -34,7 +34,8 @@ import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from collections.abc import Mapping
+from typing import Callable, NamedTuple, Protocol
 
 import pandas as pd
 
@@ -45,6 +46,7 @@ from vcsumo.signalling.regimes import REGIMES, Regime
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.health import HealthMonitor
 from vcsumo.sim.network import BuiltNetwork
+from vcsumo.sim.records import CsvStream
 from vcsumo.sim.interlocking import MergeLocking
 from vcsumo.sim.supervision import BrakingCurveSupervisor
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
@@ -60,8 +62,7 @@ class MeasuringPoint:
     km: float
 
 
-@dataclass(frozen=True)
-class TrainState:
+class TrainState(NamedTuple):
     """What the loop knows about a train after a step (SI units; passed to drivers)."""
 
     id: str
@@ -78,11 +79,43 @@ class TrainState:
     """Front-to-rear distance to the train ahead on the route, m (inf if none within look-ahead)."""
 
 
+class _StepTrains(Mapping):
+    """The running trains of one step as a read-only mapping id -> :class:`TrainState`, each built
+    when first asked for (a driver reads its convoys' trains, not every train of a network)."""
+
+    __slots__ = ("_t", "_rows", "_built")
+
+    def __init__(self, t: float, rows: dict[str, tuple]):
+        self._t = t
+        self._rows = rows  # id -> (profile, s, speed, accel, edge, leader, gap)
+        self._built: dict[str, TrainState] = {}
+
+    def __getitem__(self, vid: str) -> TrainState:
+        ts = self._built.get(vid)
+        if ts is None:
+            prof, s, v, a, edge, lead, gap = self._rows[vid]
+            section, km = prof.km_at(s)
+            ts = self._built[vid] = TrainState(vid, self._t, s, section, km, v, a, edge, lead, gap)
+        return ts
+
+    def get(self, vid: str, default=None):
+        return self[vid] if vid in self._rows else default
+
+    def __contains__(self, vid: object) -> bool:
+        return vid in self._rows
+
+    def __iter__(self):
+        return iter(self._rows)
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+
 @dataclass(frozen=True)
 class Snapshot:
     time_s: float
     step_s: float
-    trains: dict[str, TrainState]
+    trains: Mapping[str, TrainState]
 
 
 class Driver(Protocol):
@@ -124,7 +157,9 @@ class Scenario:
     supervise: bool = True
     """Braking-curve supervision of the trains SUMO drives (off only to show what SUMO alone does)."""
     full_outputs: bool = True
-    """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
+    """Write the trajectory CSV and SUMO's rail-signal output (off for bisection probes and batches)."""
+    sumo_fcd: bool = False
+    """Also write SUMO's own fcd output (fcd.xml, the same 1 s samples as trajectories.csv; only with full_outputs)."""
     trace_speeds: bool = False
     """Keep every train's (position, speed) at every step in the result (hindrance checks)."""
     additional_files: list[Path] = field(default_factory=list)
@@ -145,13 +180,32 @@ class Scenario:
 
 @dataclass
 class SimulationResult:
-    trajectories: pd.DataFrame
+    trajectories_file: Path | None
+    """trajectories.csv as written during the run (None: not written, Scenario.full_outputs off)."""
     passages: pd.DataFrame
     stop_events: pd.DataFrame
     trains: pd.DataFrame
     summary: dict
     speed_traces: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
     """train -> (route positions m, speeds m/s) at every step, when Scenario.trace_speeds."""
+    _trajectories: pd.DataFrame | None = field(default=None, repr=False)
+
+    @property
+    def trajectories(self) -> pd.DataFrame:
+        """Every train's state once per record period (read from trajectories.csv when first asked
+        for: the loop streams it to disk; empty when it was not written)."""
+        if self._trajectories is None:
+            if self.trajectories_file is not None and self.trajectories_file.is_file():
+                self._trajectories = pd.read_csv(self.trajectories_file)
+            else:
+                self._trajectories = pd.DataFrame(columns=TRAJECTORY_COLUMNS)
+        return self._trajectories
+
+
+TRAJECTORY_COLUMNS = ["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"]
+TRAJECTORY_FLOATS = ["time_s", "km", "s_m", "speed_mps", "accel_mps2", "gap_m"]
+LOOP_PARTS = ("sumo", "observation", "supervision", "health", "recording", "driver", "io")
+"""Parts of the loop whose CPU time :func:`simulate` accounts (``summary["loop_cpu_s"]``)."""
 
 
 @dataclass
@@ -170,10 +224,22 @@ class _Track:
     mp_s: dict[str, float] = field(default_factory=dict)
     departed_at: float = math.nan
     arrived_at: float = math.nan
+    starts: list[float] = field(default_factory=list)
+    """Where each edge of the route starts, m (plain floats for the per-step look-ups)."""
 
 
 def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] | None = None) -> SimulationResult:
-    """Run a scenario in SUMO, writing SUMO outputs and vcsumo's CSVs into ``out``."""
+    """Run a scenario in SUMO, writing SUMO outputs and vcsumo's CSVs into ``out``.
+
+    Per step the work is proportional to the trains running: SUMO keeps them in one list
+    (:meth:`SumoBackend.running`), their values are read in one pass, the train ahead beyond
+    SUMO's look-ahead is found from the route's edges, and the trajectory rows go to disk in chunks
+    (:class:`vcsumo.sim.records.CsvStream`).  The CPU time of each part of the loop (SUMO stepping,
+    observation, supervision, health, recording, driver, I/O) is in ``summary["loop_cpu_s"]``.
+    """
+    clock = time.thread_time
+    cpu = dict.fromkeys(LOOP_PARTS, 0.0)
+    c_mark = clock()
     t_wall = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     netdir = out / "network"
@@ -192,12 +258,22 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     args = sumo_args(
         netdir / "line.net.xml", out / "routes.rou.xml", [netdir / "stations.add.xml", *scn.additional_files], out, scn.step_length_s, end,
         moving_block=scn.rules.moving_block, seed=scn.seed, fcd_period=scn.record_period_s, full_outputs=scn.full_outputs,
+        fcd=scn.full_outputs and scn.sumo_fcd,
     ) + ["--begin", str(begin)]
     write_sumocfg(out / "scenario.sumocfg", args, out)
 
     plans = {t.id: t for t in scn.trains}
+    route_starts: dict[int, list[float]] = {}
+
+    def starts_of(plan: PlannedTrain) -> list[float]:
+        key = id(plan.profile)
+        if key not in route_starts:
+            route_starts[key] = [float(x) for x in plan.profile.starts_m]
+        return route_starts[key]
+
+    max_length = max(t.stock.length_m for t in scn.trains)
     state: dict[str, _Track] = {}
-    traj_rows: list[tuple] = []
+    traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS) if scn.full_outputs else None
     pass_rows: list[tuple] = []
     collisions: list[tuple[float, str, str]] = []
     teleports: list[tuple[float, str]] = []
@@ -212,19 +288,35 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
         locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders)
         supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
+    driver = scn.driver
+    if driver is not None and scn.full_outputs and hasattr(driver, "stream_records"):
+        driver.stream_records(out)  # the driver's per-step records go to disk as the run goes
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}
+    steps = train_steps = 0
+    progress_every = max(dt, (end - begin) / 500.0)
+    next_progress = begin
+    lookahead = scn.lookahead_m
     label = f"{scn.line.path} ({scn.regime}, network {scn.network.net_file})"
+    c = clock()
+    cpu["io"] += c - c_mark
+    c_mark = c
     with SumoBackend(args, error_log=out / "sumo_errors.log", label=label) as sim:
         t = sim.time
         while True:
+            # ---------------------------------------------------------------- SUMO
             t0 = time.perf_counter()
             t = sim.step()
             timing["sumo_s"] += time.perf_counter() - t0
+            steps += 1
+            c = clock()
+            cpu["sumo"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- observation
             for vid in sim.departed():
-                tr = _Track(plan=plans[vid], departed_at=t)
+                tr = _Track(plan=plans[vid], departed_at=t, starts=starts_of(plans[vid]))
                 for mp in scn.measuring_points:
                     try:
                         s_mp = tr.plan.profile.s_of(mp.section, mp.km)
@@ -237,102 +329,140 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             for vid in arrived_now:
                 if vid in state:
                     state[vid].arrived_at = t
-            active = [v for v in sim.train_ids() if v in state]
-            snap_trains: dict[str, TrainState] = {}
-            caps: dict[str, float] = {}
-            obs = {vid: sim.observe(vid) for vid in active}
-            others = [(vid, o.edge, o.lane_pos_m, plans[vid].stock.length_m) for vid, o in obs.items()]
-            for vid in active:
+            active = [v for v in sim.running() if v in state]
+            train_steps += len(active)
+            obs = dict(zip(active, sim.observe_all(active)))  # vid -> (edge, lane pos, speed, accel, odometer, route index)
+            leads = sim.leaders(active, lookahead)
+            on_edge: dict[str, list[tuple[str, float, float]]] | None = None
+            rows: list[tuple] = []  # (vid, track, s, speed, accel, edge, lead, gap, controlled)
+            for vid, lead in zip(active, leads):
                 tr = state[vid]
-                ob = obs[vid]
+                edge, lane_pos, speed, accel, odo, ridx = obs[vid]
                 prof = tr.plan.profile
                 prev_s = tr.s
-                if not ob.edge.startswith(":") and 0 <= ob.route_index < len(prof.edges) and prof.edges[ob.route_index] == ob.edge:
-                    tr.s = float(prof.starts_m[ob.route_index]) + ob.lane_pos_m
-                    tr.sync_s, tr.sync_odo = tr.s, ob.odometer_m
+                if not edge.startswith(":") and 0 <= ridx < len(prof.edges) and prof.edges[ridx] == edge:
+                    tr.s = tr.starts[ridx] + lane_pos
+                    tr.sync_s, tr.sync_odo = tr.s, odo
                 else:
-                    tr.s = tr.sync_s + (ob.odometer_m - tr.sync_odo)
-                if math.isnan(tr.s):
+                    tr.s = tr.sync_s + (odo - tr.sync_odo)
+                s_now = tr.s
+                if s_now != s_now:  # nan: not yet on its route
                     continue
                 # tunnel drag: switch the vType when the front passes a portal
-                tf = prof.tunnel_factor_at(tr.s)
+                tf = prof.tunnel_factor_at(s_now)
                 if abs(tf - tr.tf) > 1e-9:
                     sim.set_type(vid, tr.plan.stock.vtype_id(tf))
                     tr.tf = tf
                 # measuring points
-                if not math.isnan(prev_s):
-                    for label, s_mp in tr.mp_s.items():
-                        if prev_s < s_mp <= tr.s:
-                            frac = (s_mp - prev_s) / max(tr.s - prev_s, 1e-9)
-                            pass_rows.append((label, vid, t - dt + frac * dt, ob.speed_mps))
-                lead = sim.leader(vid, scn.lookahead_m)
-                if lead is None and len(others) > 1:
-                    lead = sim.route_leader(vid, others, scn.lookahead_m)
+                if tr.mp_s and prev_s == prev_s:
+                    for mp_label, s_mp in tr.mp_s.items():
+                        if prev_s < s_mp <= s_now:
+                            frac = (s_mp - prev_s) / max(s_now - prev_s, 1e-9)
+                            pass_rows.append((mp_label, vid, t - dt + frac * dt, speed))
+                if lead is None and len(active) > 1:  # beyond SUMO's look-ahead: the train ahead on the route
+                    if on_edge is None:
+                        on_edge = {}
+                        for oid in active:
+                            o = obs[oid]
+                            if not o[0].startswith(":"):
+                                on_edge.setdefault(o[0], []).append((oid, o[1], plans[oid].stock.length_m))
+                    lead = sim.route_leader_indexed(vid, s_now, prof.edges, tr.starts, ridx, on_edge, max_length, lookahead)
                 gap = lead[1] if lead else math.inf
                 if lead is not None and locking is not None and lead[0] in state:
-                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
+                    g = locking.fouling_gap(vid, s_now, lead[0], state[lead[0]].s)
                     if g is not None:
                         gap = g
-                tr.min_gap = min(tr.min_gap, gap)
-                controlled = tr.controlled and scn.driver is not None
-                if scn.driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
+                if gap < tr.min_gap:
+                    tr.min_gap = gap
+                controlled = tr.controlled and driver is not None
+                if driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
                     # before the driver's first decision a follower behind its own predecessor counts as coupled
-                    controlled = scn.driver.predecessor_of(vid) == lead[0]
-                perm = None
-                if supervisor is not None:
-                    supervisor.observe(vid, t, ob.odometer_m)
-                    if not controlled:
-                        perm = supervisor.permitted(vid, t, tr.s, ob.speed_mps, gap, lead[0] if lead else None)
-                if lead is not None and lead[0] in obs and controlled:
-                    required = health.relative_gap(vid, tr.s, ob.speed_mps, lead[0], gap, obs[lead[0]].speed_mps)
-                else:
-                    required = health.absolute_gap(vid, tr.s, ob.speed_mps)
-                if health.update(vid, dt, tr.s, ob.speed_mps, ob.accel_mps2, gap, required, perm.authority_m if perm else math.inf, not controlled):
-                    sec, km_v = prof.km_at(tr.s)  # the gap just fell below the safe separation
-                    violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), ob.speed_mps, gap, required, controlled))
-                if perm is not None and perm.speed_mps < ob.speed_mps + 2.0:
-                    caps[vid] = perm.speed_mps
+                    controlled = driver.predecessor_of(vid) == lead[0]
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))
-                    tr_s.append(tr.s)
-                    tr_v.append(ob.speed_mps)
-                section, km = prof.km_at(tr.s)
-                snap_trains[vid] = TrainState(vid, t, tr.s, section, km, ob.speed_mps, ob.accel_mps2, ob.edge, lead[0] if lead else None, gap)
+                    tr_s.append(s_now)
+                    tr_v.append(speed)
+                rows.append((vid, tr, s_now, speed, accel, edge, lead, gap, controlled))
+            c = clock()
+            cpu["observation"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- supervision (braking curves)
+            perms: list = [None] * len(rows)
+            if supervisor is not None:
+                for i, (vid, tr, s_now, speed, _a, _e, lead, gap, controlled) in enumerate(rows):
+                    supervisor.observe(vid, t, obs[vid][4])
+                    if not controlled:
+                        perms[i] = supervisor.permitted(vid, t, s_now, speed, gap, lead[0] if lead else None)
+            c = clock()
+            cpu["supervision"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- health
+            caps: dict[str, float] = {}
+            for i, (vid, tr, s_now, speed, accel, _e, lead, gap, controlled) in enumerate(rows):
+                perm = perms[i]
+                if lead is not None and controlled and lead[0] in obs:
+                    required = health.relative_gap(vid, s_now, speed, lead[0], gap, obs[lead[0]][2])
+                else:
+                    required = health.absolute_gap(vid, s_now, speed)
+                if health.update(vid, dt, s_now, speed, accel, gap, required, perm.authority_m if perm else math.inf, not controlled):
+                    sec, km_v = tr.plan.profile.km_at(s_now)  # the gap just fell below the safe separation
+                    violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))
+                if perm is not None and perm.speed_mps < speed + 2.0:
+                    caps[vid] = perm.speed_mps
+            c = clock()
+            cpu["health"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- supervision: merges, caps
             if locking is not None:  # approach locking at merges (used by the supervision from the next step)
                 locking.arrived(arrived_now)
-                for sig, train, foe in locking.update({vid: (ts.s_m, ts.speed_mps) for vid, ts in snap_trains.items()}):
+                for sig, train, foe in locking.update({r[0]: (r[2], r[3]) for r in rows}):
                     sim.add_constraint(sig, train, sig, foe)
-            emergency_now = set(sim.emergency_stops())
-            for vid in active:
-                if vid in state:
-                    tr = state[vid]
-                    if vid in emergency_now and not tr.in_emergency:
-                        tr.emergencies += 1
-                    tr.in_emergency = vid in emergency_now
-            touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
-            for collider, victim in touching - touching_before:  # one collision per episode
-                collisions.append((t, collider, victim))
-                health.collision(t, collider, victim, obs[collider].speed_mps if collider in obs else 0.0, obs[victim].speed_mps if victim in obs else 0.0)
-            touching_before = touching
-            for vid in sim.teleports():
-                teleports.append((t, vid))
-            if t + 1e-9 >= next_record:
-                for ts in snap_trains.values():
-                    traj_rows.append((ts.time_s, ts.id, ts.section, round(ts.km, 6), round(ts.s_m, 3), ts.speed_mps, ts.accel_mps2,
-                                      None if math.isinf(ts.gap_m) else round(ts.gap_m, 3), ts.leader, ts.edge))
-                next_record += scn.record_period_s
-            for vid, ts in snap_trains.items():
+            for r in rows:
+                vid = r[0]
                 cap = caps.get(vid)
-                if cap is not None and not state[vid].controlled:
+                if cap is not None and not r[1].controlled:
                     sim.set_speed(vid, cap)
                     capped.add(vid)
                     authority_caps += 1
                 elif vid in capped:
                     sim.release(vid)
                     capped.discard(vid)
-            if scn.driver is not None:
+            c = clock()
+            cpu["supervision"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- health: SUMO's events
+            emergency_now = set(sim.emergency_stops())
+            for vid in active:
+                tr = state[vid]
+                if vid in emergency_now and not tr.in_emergency:
+                    tr.emergencies += 1
+                tr.in_emergency = vid in emergency_now
+            touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
+            for collider, victim in touching - touching_before:  # one collision per episode
+                collisions.append((t, collider, victim))
+                health.collision(t, collider, victim, obs[collider][2] if collider in obs else 0.0, obs[victim][2] if victim in obs else 0.0)
+            touching_before = touching
+            for vid in sim.teleports():
+                teleports.append((t, vid))
+            c = clock()
+            cpu["health"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- recording
+            if t + 1e-9 >= next_record:
+                if traj is not None:
+                    for vid, tr, s_now, speed, accel, edge, lead, gap, _c in rows:
+                        section, km = tr.plan.profile.km_at(s_now)
+                        traj.append((t, vid, section, round(km, 6), round(s_now, 3), speed, accel, None if math.isinf(gap) else round(gap, 3),
+                                     lead[0] if lead else None, edge))
+                next_record += scn.record_period_s
+            c = clock()
+            cpu["recording"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- driver
+            if driver is not None:
                 t0 = time.perf_counter()
-                commands = scn.driver.make_step(Snapshot(t, dt, snap_trains))
+                snap = _StepTrains(t, {r[0]: (r[1].plan.profile, r[2], r[3], r[4], r[5], r[6][0] if r[6] else None, r[7]) for r in rows})
+                commands = driver.make_step(Snapshot(t, dt, snap))
                 timing["controller_s"] += time.perf_counter() - t0
                 for vid, v_cmd in commands.items():
                     tr = state.get(vid)
@@ -343,33 +473,46 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         sim.set_speed_mode(vid, SPEED_MODE_VC_FOLLOWER)
                         tr.controlled = True
                     sim.set_speed(vid, max(0.0, v_cmd))
-                for vid, tr in state.items():
-                    if tr.controlled and vid not in commands and vid in snap_trains:
+                for vid in active:
+                    tr = state[vid]
+                    if tr.controlled and vid not in commands and vid in snap:
                         sim.release(vid)
                         tr.controlled = False
                         tr.released_s = t
                         if supervisor is not None:  # supervised from this very step: no step of SUMO alone
-                            ts = snap_trains[vid]
+                            ts = snap[vid]
                             perm = supervisor.permitted(vid, t, ts.s_m, ts.speed_mps, ts.gap_m, ts.leader)
                             if perm.speed_mps < ts.speed_mps + 2.0:
                                 sim.set_speed(vid, perm.speed_mps)
                                 capped.add(vid)
-                    elif not tr.controlled and vid not in commands and vid in snap_trains and math.isnan(tr.released_s) and tr.departed_at < t:
+                    elif not tr.controlled and vid not in commands and vid in snap and math.isnan(tr.released_s) and tr.departed_at < t:
                         tr.released_s = t  # the driver decided not to drive it
-            if progress is not None:
+                c = clock()
+                cpu["driver"] += c - c_mark
+                c_mark = c
+            if progress is not None and t >= next_progress:
                 progress(t - begin, end - begin)
+                next_progress = t + progress_every
             if sim.min_expected() == 0 or t >= end - 1e-9:
                 break
         sim_end = t
+    if progress is not None:
+        progress(sim_end - begin, end - begin)
     t_io = time.perf_counter()
+    if traj is not None:
+        traj.close()
     pd.DataFrame(violation_rows, columns=["time_s", "train", "leader", "section", "km", "speed_mps", "gap_m", "safe_separation_m", "driven_by_vcsumo"]).to_csv(out / "violations.csv", index=False)
     pd.DataFrame(health.collision_rows, columns=["time_s", "collider", "victim", "impact_speed_kmh"]).to_csv(out / "collisions.csv", index=False)
     extra = {
         "fixed_time_s": scn.assumptions.fixed_time_s, "authority_caps": authority_caps, "assumptions": scn.assumptions.name,
         "sumo_step_time_s": round(timing["sumo_s"], 3), "controller_time_s": round(timing["controller_s"], 3),
+        "steps": steps, "train_steps": train_steps,
     }
-    result = _collect(scn, out, state, health, traj_rows, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
+    result = _collect(scn, out, state, health, traj.path if traj is not None else None, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
     result.speed_traces = traces
+    cpu["io"] += clock() - c_mark
+    result.summary["loop_cpu_s"] = {k: round(v, 3) for k, v in cpu.items()}
+    (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
     return result
 
 
@@ -382,10 +525,9 @@ def _parse_xml_rows(path: Path, tag: str) -> list[dict]:
         raise SumoError(f"{path}: SUMO output is not valid XML ({exc})") from None
 
 
-def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthMonitor, traj_rows, pass_rows, collisions, teleports, sim_end: float,
-             wall: float, extra: dict | None = None) -> SimulationResult:
+def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthMonitor, traj_file: Path | None, pass_rows, collisions, teleports,
+             sim_end: float, wall: float, extra: dict | None = None) -> SimulationResult:
     t_io = time.perf_counter()
-    traj = pd.DataFrame(traj_rows, columns=["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"])
     passages = pd.DataFrame(pass_rows, columns=["measuring_point", "train", "time_s", "speed_mps"])
     # stop events from SUMO's stop output
     plat_station = {p.id: p.station_id for p in scn.network.topology.platforms.values()}
@@ -465,8 +607,6 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthM
         and summary["collisions"] == 0 and summary["gap_violations"] == 0 and summary["teleports"] == 0 and summary["sumo_stop_warnings"] == 0
         and summary["sumo_emergency_brakings"] == 0
     )
-    if scn.full_outputs:
-        traj.to_csv(out / "trajectories.csv", index=False)
     passages.to_csv(out / "passages.csv", index=False)
     stops.to_csv(out / "stop_events.csv", index=False)
     trains_df.to_csv(out / "summary.csv", index=False)
@@ -474,4 +614,4 @@ def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthM
     summary["io_time_s"] = round(io, 3)
     summary["wall_time_s"] = round(wall + io, 3)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return SimulationResult(traj, passages, stops, trains_df, summary)
+    return SimulationResult(traj_file, passages, stops, trains_df, summary)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import math
+from bisect import bisect_left, insort
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -79,6 +80,10 @@ class SumoBackend:
         self.label = label
         self._ls = None
         self._time = math.nan
+        self._running: list[str] = []
+        self._departed: list[str] = []
+        self._arrived: list[str] = []
+        self._min_gap: dict[str, float] = {}
 
     # ----------------------------------------------------------------------------- lifecycle
     def __enter__(self) -> "SumoBackend":
@@ -102,6 +107,17 @@ class SumoBackend:
             where = f"{self.label}: " if self.label else ""
             raise SumoError(f"{where}SUMO failed to start: {self._errors() or _one_line(exc)}") from None
         self._time = libsumo.simulation.getTime()
+        # the per-train getters straight from the extension module (libsumo's Python wrappers only
+        # forward their arguments: one call layer less for every value of every train at every step)
+        raw = getattr(libsumo, "_libsumo", None)
+        v = libsumo.vehicle
+
+        def pick(name: str):
+            return getattr(raw, f"vehicle_{name}", None) or getattr(v, name)
+
+        self._get = tuple(pick(n) for n in ("getRoadID", "getLanePosition", "getSpeed", "getAcceleration", "getDistance", "getRouteIndex"))
+        self._get_leader = pick("getLeader")
+        self._get_min_gap = pick("getMinGap")
 
     def close(self) -> None:
         if self._ls is not None:
@@ -126,9 +142,22 @@ class SumoBackend:
     # ----------------------------------------------------------------------------- stepping
     @_traci
     def step(self) -> float:
-        """Advance one step; returns the new simulation time, s."""
-        self._ls.simulationStep()
-        self._time = self._ls.simulation.getTime()
+        """Advance one step; returns the new simulation time, s.  Keeps the list of running trains
+        (:meth:`running`) from the trains that departed and arrived in the step."""
+        ls = self._ls
+        ls.simulationStep()
+        self._time = ls.simulation.getTime()
+        self._departed = list(ls.simulation.getDepartedIDList())
+        self._arrived = list(ls.simulation.getArrivedIDList())
+        running = self._running
+        for vid in self._departed:
+            insort(running, vid)
+            self._min_gap[vid] = self._get_min_gap(vid)
+        for vid in self._arrived:
+            i = bisect_left(running, vid)
+            if i < len(running) and running[i] == vid:
+                del running[i]
+            self._min_gap.pop(vid, None)
         return self._time
 
     @property
@@ -144,17 +173,46 @@ class SumoBackend:
         """Trains still in the simulation or waiting to be inserted."""
         return self._ls.simulation.getMinExpectedNumber()
 
-    @_traci
     def departed(self) -> list[str]:
-        return list(self._ls.simulation.getDepartedIDList())
+        """Trains that entered the network in the last step."""
+        return list(self._departed)
 
-    @_traci
     def arrived(self) -> list[str]:
-        return list(self._ls.simulation.getArrivedIDList())
+        """Trains that left the network in the last step."""
+        return list(self._arrived)
+
+    def running(self) -> list[str]:
+        """Trains in the network after the last step, in SUMO's order (by id, as ``getIDList``),
+        kept from the departures and arrivals of every step (no call into SUMO)."""
+        return list(self._running)
 
     @_traci
     def train_ids(self) -> list[str]:
+        """SUMO's own list of the trains in the network (one call; :meth:`running` is the same list)."""
         return list(self._ls.vehicle.getIDList())
+
+    @_traci
+    def observe_all(self, ids: list[str]) -> list[tuple[str, float, float, float, float, int]]:
+        """(edge, lane position m, speed m/s, acceleration m/s², odometer m, route index) of each
+        train in ``ids`` — the values :meth:`observe` gives, read in one go."""
+        road, pos, speed, accel, odo, index = self._get
+        return [(road(vid), pos(vid), speed(vid), accel(vid), odo(vid), index(vid)) for vid in ids]
+
+    @_traci
+    def leaders(self, ids: list[str], lookahead_m: float) -> list[tuple[str, float] | None]:
+        """:meth:`leader` of each train in ``ids``."""
+        get, min_gap = self._get_leader, self._min_gap
+        out: list[tuple[str, float] | None] = []
+        for vid in ids:
+            res = get(vid, lookahead_m)
+            if not res or not res[0]:
+                out.append(None)
+            else:
+                g = min_gap.get(vid)
+                if g is None:
+                    g = min_gap[vid] = self._get_min_gap(vid)
+                out.append((res[0], res[1] + g))
+        return out
 
     @_traci
     def observe(self, vid: str) -> TrainObservation:
@@ -179,12 +237,56 @@ class SumoBackend:
         front-to-rear in m) or None.  ``others``: (id, edge, front position on the edge, length).
 
         SUMO's getLeader only searches as far as its lane look-ahead reaches, which on long rail
-        routes can stop kilometres short of the train ahead; this is the fallback.
+        routes can stop kilometres short of the train ahead; this is the fallback (one driving
+        distance per other train: :meth:`route_leader_indexed` finds the candidates from the route).
         """
         best: tuple[str, float] | None = None
         for oid, edge, pos, length in others:
             if oid == vid or edge.startswith(":"):
                 continue
+            d = self.driving_distance(vid, edge, pos)
+            if d is None or d <= 0.0:
+                continue
+            gap = d - length
+            if gap <= lookahead_m and (best is None or gap < best[1]):
+                best = (oid, gap)
+        return best
+
+    def route_leader_indexed(self, vid: str, s_m: float, route: list[str], starts_m: list[float], index: int,
+                             on_edge: dict[str, list[tuple[str, float, float]]], max_length_m: float, lookahead_m: float) -> tuple[str, float] | None:
+        """:meth:`route_leader` with the candidates taken from the route instead of from every train.
+
+        ``s_m``: ``vid``'s front on its route (``starts_m``: where each edge of ``route`` starts);
+        ``index``: its route index; ``on_edge``: the trains on each normal edge this step as (id,
+        front position on the edge, length); ``max_length_m``: the longest train.  The edges ahead are
+        walked as far as a train on them could be within the look-ahead; the trains found are
+        ranked by their gap on the route (which leaves out the junctions' internal lanes, so it
+        is at most SUMO's driving distance, the more so the farther the train), and SUMO's driving
+        distance decides among those that can be nearest: the same answer as :meth:`route_leader`.
+        """
+        if index < 0:
+            return None
+        cands: list[tuple[float, str, str, float, float]] = []
+        reach = lookahead_m + max_length_m + 1.0
+        best_approx = math.inf
+        for k in range(index, len(route)):
+            ahead = starts_m[k] - s_m
+            if ahead > reach or ahead - max_length_m > best_approx + 100.0:
+                break
+            for oid, pos, length in on_edge.get(route[k], ()):
+                if oid == vid:
+                    continue
+                approx = ahead + pos - length
+                cands.append((approx, oid, route[k], pos, length))
+                if ahead + pos > 0.0 and approx < best_approx:
+                    best_approx = approx
+        if not cands:
+            return None
+        cands.sort(key=lambda c: c[0])
+        best: tuple[str, float] | None = None
+        for approx, oid, edge, pos, length in cands:
+            if best is not None and approx > best[1] + 1.0:
+                break
             d = self.driving_distance(vid, edge, pos)
             if d is None or d <= 0.0:
                 continue
@@ -202,6 +304,7 @@ class SumoBackend:
     @_traci
     def set_type(self, vid: str, type_id: str) -> None:
         self._ls.vehicle.setType(vid, type_id)
+        self._min_gap[vid] = self._get_min_gap(vid)
 
     @_traci
     def set_speed(self, vid: str, speed_mps: float) -> None:
@@ -247,9 +350,10 @@ class SumoBackend:
 
 def sumo_args(
     net_file: Path, route_file: Path, additional: list[Path], out: Path, step_length: float, end_time: float,
-    moving_block: bool, seed: int = 42, fcd_period: float = 1.0, full_outputs: bool = True,
+    moving_block: bool, seed: int = 42, fcd_period: float = 1.0, full_outputs: bool = True, fcd: bool = False,
 ) -> list[str]:
-    """SUMO options for a vcsumo run (also written into the results' .sumocfg)."""
+    """SUMO options for a vcsumo run (also written into the results' .sumocfg).  ``full_outputs``:
+    the rail-signal output; ``fcd``: SUMO's fcd output too (vcsumo's trajectories.csv holds the same samples)."""
     args = [
         "-n", str(net_file), "-r", str(route_file), "-a", ",".join(str(a) for a in additional),
         "--step-length", f"{step_length}", "--end", f"{end_time}", "--seed", str(seed),
@@ -259,12 +363,13 @@ def sumo_args(
         "--message-log", str(out / "sumo_messages.log"), "--aggregate-warnings", "3",
         "--tripinfo-output", str(out / "tripinfo.xml"), "--stop-output", str(out / "stops.xml"),
     ]
-    if full_outputs:
+    if fcd:
         args += [
             "--fcd-output", str(out / "fcd.xml"), "--device.fcd.period", f"{fcd_period}",
             "--fcd-output.distance", "true", "--fcd-output.acceleration", "true",
-            "--railsignal-vehicle-output", str(out / "railsignal_vehicles.xml"),
         ]
+    if full_outputs:
+        args += ["--railsignal-vehicle-output", str(out / "railsignal_vehicles.xml")]
     if moving_block:
         args += ["--railsignal-moving-block", "true"]
     return args
