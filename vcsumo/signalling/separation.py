@@ -318,6 +318,8 @@ class RouteBraking:
         self._g = [float(v) for v in g_low]
         self._gi = [float(v) for v in self.grade_integral]
         self._ci = [float(v) for v in G * self.grade_integral / self.rho]
+        self._g_min = min(self._g)
+        self._floor: float | None = None
         worst = self.brake_part(stock.max_speed_ms) + G * float(g_low.min()) / self.rho
         if worst <= 0.0 and not strongest:
             raise ValueError(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
@@ -386,6 +388,19 @@ class RouteBraking:
             x_stop = xs[-1] + (target - f_end) / (b + G * self._g[-1] / self.rho)
         x_stop = max(x_stop, x0)
         return x_stop - s_m
+
+    def stopping_bound(self, v_mps: float, dead_time_s: float) -> float:
+        """An upper bound of :meth:`stopping_distance` from anywhere on the route, m: v·T + v²/(2·a)
+        with a the lowest deceleration of the route (its steepest descent; the brake part at the
+        train's top speed, or at v above it), plus a margin for rounding.  Per-step checks use it
+        to skip the integration where even this distance cannot matter."""
+        v_top = self.stock.max_speed_ms
+        if self._floor is None:
+            self._floor = self.brake_part(v_top) + G * self._g_min / self.rho
+        a = self._floor if v_mps <= v_top else self.brake_part(v_mps) + G * self._g_min / self.rho
+        if a <= 0.0:
+            return math.inf
+        return (v_mps * dead_time_s + v_mps * v_mps / (2.0 * a)) * (1.0 + 1e-6) + 1e-3
 
     def curve(self, dead_time_s: float):
         """``curve(s, target, target speed, v)`` for :func:`vcsumo.running_time.unhindered_run`."""

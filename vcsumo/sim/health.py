@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, strongest_decel
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, strongest_decel
 from vcsumo.timetable import PlannedTrain
 
 GAP_TOLERANCE_M = 0.01
@@ -68,6 +68,8 @@ class HealthMonitor:
         self.relative: dict[tuple[str, str], RelativeBraking] = {}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
         self.collision_rows: list[tuple] = []
+        # the hardest service braking without resistance and grade: braking at most this is never beyond service
+        self._service_floor = {t.id: brake_range(t.stock, model.assumptions, "service")[1] for t in trains}
 
     # ------------------------------------------------------------------------------------------
     def absolute_gap(self, train_id: str, s_m: float, v_mps: float) -> float:
@@ -82,12 +84,39 @@ class HealthMonitor:
         pl = self.plans.get(leader_id)
         if pl is None:
             return self.absolute_gap(train_id, s_m, v_mps)
+        rule = self._rule(train_id, leader_id)
+        s_l = s_m + gap_m + pl.stock.length_m  # the leader's front in the follower's route frame
+        return rule.required_gap(s_m, v_mps, s_l, leader_v_mps, self.model.dead_time_s)
+
+    def _rule(self, train_id: str, leader_id: str) -> RelativeBraking:
         rule = self.relative.get((train_id, leader_id))
         if rule is None:
             p = self.plans[train_id]
-            rule = self.relative[(train_id, leader_id)] = RelativeBraking(self.model, p.stock, pl.stock, p.profile)
-        s_l = s_m + gap_m + pl.stock.length_m  # the leader's front in the follower's route frame
-        return rule.required_gap(s_m, v_mps, s_l, leader_v_mps, self.model.dead_time_s)
+            rule = self.relative[(train_id, leader_id)] = RelativeBraking(self.model, p.stock, self.plans[leader_id].stock, p.profile)
+        return rule
+
+    def step(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, authority_m: float = math.inf,
+             driven_by_sumo: bool = True, leader_id: str | None = None, leader_v_mps: float = 0.0) -> float | None:
+        """One step of one train (as :meth:`update`), the safe separation evaluated only where it can
+        change a counter: relative braking behind ``leader_id`` (a coupled follower), else absolute.
+
+        The safe separation is at most margin + an upper bound of the stopping distance
+        (:meth:`~vcsumo.signalling.separation.RouteBraking.stopping_bound`); where the gap exceeds that by at least the smallest margin seen so
+        far (and by more than −tolerance), the margin can neither set a new minimum nor fall below
+        the separation, so the rule is not evaluated: every counter and the minimum margin are
+        the same as when it is evaluated at every step.  Returns the safe separation when the gap
+        has just fallen below it, else None."""
+        h = self.trains[train_id]
+        if gap_m < math.inf:
+            relative = leader_id is not None and leader_id in self.plans
+            br = self._rule(train_id, leader_id).follower if relative else self.braking[train_id]
+            floor = h.min_margin_m if h.min_margin_m > -GAP_TOLERANCE_M else -GAP_TOLERANCE_M
+            if gap_m - self.model.margin_m - br.stopping_bound(v_mps, self.model.dead_time_s) < floor:
+                required = (self.relative_gap(train_id, s_m, v_mps, leader_id, gap_m, leader_v_mps) if relative
+                            else self.absolute_gap(train_id, s_m, v_mps))
+                return required if self.update(train_id, dt, s_m, v_mps, accel_mps2, gap_m, required, authority_m, driven_by_sumo) else None
+        self.update(train_id, dt, s_m, v_mps, accel_mps2, math.inf, math.inf, authority_m, driven_by_sumo)
+        return None
 
     def _service_limit(self, train_id: str, s_m: float, v_mps: float) -> float:
         p = self.plans[train_id]
@@ -130,8 +159,11 @@ class HealthMonitor:
         h._over = over
         # braking beyond the service rate (trains SUMO drives plan with service braking)
         decel = -accel_mps2
-        h.max_decel_mps2 = max(h.max_decel_mps2, decel)
-        beyond = driven_by_sumo and decel > self._service_limit(train_id, s_m, v_mps) + DECEL_TOLERANCE_MPS2
+        if decel > h.max_decel_mps2:
+            h.max_decel_mps2 = decel
+        # the service limit is at least the hardest service brake alone: below that it is not looked up
+        beyond = driven_by_sumo and decel > self._service_floor[train_id] + DECEL_TOLERANCE_MPS2 \
+            and decel > self._service_limit(train_id, s_m, v_mps) + DECEL_TOLERANCE_MPS2
         if beyond and not h._beyond:
             h.beyond_service_events += 1
         h._beyond = beyond

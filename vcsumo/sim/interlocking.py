@@ -96,12 +96,17 @@ class MergeLocking:
         a = self.model.assumptions
         new: list[tuple[str, str, str]] = []
         for tid, (s_m, v) in states.items():
+            stop = None  # the train's stopping distance, integrated once and only for a junction within its bound
             for ap in self.approaches.get(tid, ()):
                 j = self.junctions[ap.node]
                 if tid in j.order or s_m > ap.s_m:
                     continue
                 d = ap.s_m - s_m
-                stop = self.braking[tid].stopping_distance(s_m, v, a.dead_time_s)
+                if stop is None:
+                    br = self.braking[tid]
+                    if d > br.stopping_bound(v, a.dead_time_s) + v * self.lock_time_s + a.position_error_m:
+                        break  # this junction and the ones after it are farther than the train can need
+                    stop = br.stopping_distance(s_m, v, a.dead_time_s)
                 if d <= stop + v * self.lock_time_s + a.position_error_m:
                     self._lock(j, tid, new)
         # a train leaves the order once its rear has cleared the junction (or it has left the network)

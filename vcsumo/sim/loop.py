@@ -400,11 +400,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             caps: dict[str, float] = {}
             for i, (vid, tr, s_now, speed, accel, _e, lead, gap, controlled) in enumerate(rows):
                 perm = perms[i]
-                if lead is not None and controlled and lead[0] in obs:
-                    required = health.relative_gap(vid, s_now, speed, lead[0], gap, obs[lead[0]][2])
-                else:
-                    required = health.absolute_gap(vid, s_now, speed)
-                if health.update(vid, dt, s_now, speed, accel, gap, required, perm.authority_m if perm else math.inf, not controlled):
+                coupled = lead is not None and controlled and lead[0] in obs  # relative braking behind the train ahead
+                required = health.step(vid, dt, s_now, speed, accel, gap, perm.authority_m if perm else math.inf, not controlled,
+                                       lead[0] if coupled else None, obs[lead[0]][2] if coupled else 0.0)
+                if required is not None:
                     sec, km_v = tr.plan.profile.km_at(s_now)  # the gap just fell below the safe separation
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))
                 if perm is not None and perm.speed_mps < speed + 2.0:

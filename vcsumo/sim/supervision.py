@@ -56,6 +56,8 @@ class _Curves:
     end_s: float | None
     signals: list[float]
     braking: RouteBraking
+    restriction_s: list[float] = field(default_factory=list)
+    """Positions of ``restrictions`` (for a bisection)."""
     next_stop: int = 0
     first_seen_s: float = math.nan
     odo_m: float = 0.0
@@ -102,7 +104,9 @@ class BrakingCurveSupervisor:
                 g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
                 raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
                                   f"({1000 * g_low:.1f} ‰) under the assumption set '{model.assumptions.name}'") from None
-            self.curves[t.id] = _Curves(t, t.profile.restriction_targets(), sorted(stops), end_s, sorted((signals or {}).get(t.id, [])), braking)
+            restrictions = t.profile.restriction_targets()
+            self.curves[t.id] = _Curves(t, restrictions, sorted(stops), end_s, sorted((signals or {}).get(t.id, [])), braking,
+                                        [x for x, _ in restrictions])
 
     # ------------------------------------------------------------------------------------------
     def observe(self, train_id: str, time_s: float, odometer_m: float) -> None:
@@ -166,18 +170,36 @@ class BrakingCurveSupervisor:
         return c.signals[k] - s_m - a.position_error_m
 
     def permitted(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None) -> Permitted:
-        """The lowest braking curve over the train's targets, for the next step, m/s."""
+        """The lowest braking curve over the train's targets, for the next step, m/s.
+
+        A target matters only within the reach (1.3 × the stopping distance + 50 m); when the nearest
+        one is beyond an upper bound of the reach (:meth:`~vcsumo.signalling.separation.RouteBraking.stopping_bound`) no curve is computed — the
+        same answer as computing them all."""
         c = self.curves.get(train_id)
         if c is None:
             return Permitted(math.inf, "")
-        p = c.plan
         a_set = self.model.assumptions
         dt = self.step_s
+        k0 = bisect_right(c.restriction_s, s_m)  # the first restriction ahead
+        while c.next_stop < len(c.stops) and c.stops[c.next_stop] < s_m - 1.0:
+            c.next_stop += 1
+        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s)
+        if self.locking is not None:
+            d_ma = min(d_ma, self.locking.authority_distance(train_id, s_m))
+        nearest = d_ma
+        if k0 < len(c.restriction_s):
+            nearest = min(nearest, c.restriction_s[k0] - s_m)
+        if c.next_stop < len(c.stops):
+            nearest = min(nearest, c.stops[c.next_stop] - s_m)
+        if c.end_s is not None:
+            nearest = min(nearest, c.end_s - s_m)
+        if nearest > 1.3 * c.braking.stopping_bound(v_mps, a_set.dead_time_s + 2 * dt) + 50.0:
+            return Permitted(math.inf, "", d_ma)
         best, reason = math.inf, ""
         # how far ahead a target can matter: the stopping distance with a generous margin
         br = c.braking
         reach = 1.3 * br.stopping_distance(s_m, v_mps, a_set.dead_time_s + 2 * dt) + 50.0
-        for s_t, v_t in c.restrictions:
+        for s_t, v_t in c.restrictions[k0:]:
             if s_t <= s_m:
                 continue
             if s_t - s_m > reach:
@@ -185,8 +207,6 @@ class BrakingCurveSupervisor:
             vp = br.permitted_speed(s_m, s_t, v_t, 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "limit"
-        while c.next_stop < len(c.stops) and c.stops[c.next_stop] < s_m - 1.0:
-            c.next_stop += 1
         if c.next_stop < len(c.stops):
             s_t = c.stops[c.next_stop]
             if s_t - s_m <= reach:
@@ -197,9 +217,6 @@ class BrakingCurveSupervisor:
             vp = br.permitted_speed(s_m, c.end_s - a_set.position_error_m, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "end"
-        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s)
-        if self.locking is not None:
-            d_ma = min(d_ma, self.locking.authority_distance(train_id, s_m))
         if d_ma <= reach:
             vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
             if vp < best:
