@@ -320,6 +320,7 @@ class RouteBraking:
         self._ci = [float(v) for v in G * self.grade_integral / self.rho]
         self._g_min = min(self._g)
         self._floor: float | None = None
+        self._v_top = math.inf
         worst = self.brake_part(stock.max_speed_ms) + G * float(g_low.min()) / self.rho
         if worst <= 0.0 and not strongest:
             raise ValueError(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
@@ -394,10 +395,10 @@ class RouteBraking:
         with a the lowest deceleration of the route (its steepest descent; the brake part at the
         train's top speed, or at v above it), plus a margin for rounding.  Per-step checks use it
         to skip the integration where even this distance cannot matter."""
-        v_top = self.stock.max_speed_ms
         if self._floor is None:
-            self._floor = self.brake_part(v_top) + G * self._g_min / self.rho
-        a = self._floor if v_mps <= v_top else self.brake_part(v_mps) + G * self._g_min / self.rho
+            self._v_top = self.stock.max_speed_ms
+            self._floor = self.brake_part(self._v_top) + G * self._g_min / self.rho
+        a = self._floor if v_mps <= self._v_top else self.brake_part(v_mps) + G * self._g_min / self.rho
         if a <= 0.0:
             return math.inf
         return (v_mps * dead_time_s + v_mps * v_mps / (2.0 * a)) * (1.0 + 1e-6) + 1e-3

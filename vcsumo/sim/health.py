@@ -69,6 +69,9 @@ class HealthMonitor:
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
         self.collision_rows: list[tuple] = []
         # the hardest service braking without resistance and grade: braking at most this is never beyond service
+        self._top_speed = {t.id: t.stock.max_speed_ms for t in trains}
+        self._margin_m = model.margin_m
+        self._dead_s = model.dead_time_s
         self._service_floor = {t.id: brake_range(t.stock, model.assumptions, "service")[1] for t in trains}
 
     # ------------------------------------------------------------------------------------------
@@ -111,7 +114,7 @@ class HealthMonitor:
             relative = leader_id is not None and leader_id in self.plans
             br = self._rule(train_id, leader_id).follower if relative else self.braking[train_id]
             floor = h.min_margin_m if h.min_margin_m > -GAP_TOLERANCE_M else -GAP_TOLERANCE_M
-            if gap_m - self.model.margin_m - br.stopping_bound(v_mps, self.model.dead_time_s) < floor:
+            if gap_m - self._margin_m - br.stopping_bound(v_mps, self._dead_s) < floor:
                 required = (self.relative_gap(train_id, s_m, v_mps, leader_id, gap_m, leader_v_mps) if relative
                             else self.absolute_gap(train_id, s_m, v_mps))
                 return required if self.update(train_id, dt, s_m, v_mps, accel_mps2, gap_m, required, authority_m, driven_by_sumo) else None
@@ -148,7 +151,7 @@ class HealthMonitor:
                     started = True
         h._below = below
         # permitted speed
-        limit = min(p.profile.speed_limit_train(s_m, p.stock.length_m), p.stock.max_speed_ms)
+        limit = min(p.profile.speed_limit_train(s_m, p.stock.length_m), self._top_speed[train_id])
         excess = v_mps - limit
         over = excess > self.tol_mps
         if over:

@@ -80,6 +80,8 @@ class MergeLocking:
                 if e.to_node in merges:
                     out.append(_Approach(e.to_node, float(t.profile.starts_m[i] + t.profile.lengths_m[i]), e.track))
             self.approaches[t.id] = out
+        self._last_approach = {tid: max((a.s_m for a in aps), default=-math.inf) for tid, aps in self.approaches.items()}
+        """The farthest junction signal on each train's route: past it nothing here concerns the train, m."""
         self.junctions: dict[str, _Junction] = {n: _Junction(n) for n in merges}
         for node, order in (fixed_orders or {}).items():
             if node in self.junctions:
@@ -145,6 +147,8 @@ class MergeLocking:
     def authority_distance(self, tid: str, s_m: float) -> float:
         """Distance to the end of authority a junction ahead sets (inf: none), m."""
         best = math.inf
+        if s_m > self._last_approach.get(tid, -math.inf):
+            return best
         for ap in self.approaches.get(tid, ()):
             if ap.s_m < s_m:
                 continue
@@ -164,6 +168,8 @@ class MergeLocking:
         """While a train crossing into this train's route at a merge still has its rear on the other
         track, the gap that matters runs to the junction (the fouling point), not to where SUMO
         projects that rear: the distance from the front to the junction, m (None: no such merge)."""
+        if s_m > self._last_approach.get(tid, -math.inf):
+            return None
         length = self.plans[leader].stock.length_m if leader in self.plans else 0.0
         for ap in self.approaches.get(tid, ()):
             if ap.s_m < s_m:

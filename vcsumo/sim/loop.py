@@ -226,6 +226,8 @@ class _Track:
     arrived_at: float = math.nan
     starts: list[float] = field(default_factory=list)
     """Where each edge of the route starts, m (plain floats for the per-step look-ups)."""
+    tunnels: bool = True
+    """The route has a tunnel factor other than 1 somewhere (else the vType never changes)."""
 
 
 def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] | None = None) -> SimulationResult:
@@ -316,7 +318,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             c_mark = c
             # ---------------------------------------------------------------- observation
             for vid in sim.departed():
-                tr = _Track(plan=plans[vid], departed_at=t, starts=starts_of(plans[vid]))
+                tr = _Track(plan=plans[vid], departed_at=t, starts=starts_of(plans[vid]),
+                            tunnels=bool((plans[vid].profile.tunnel_factors != 1.0).any()))
                 for mp in scn.measuring_points:
                     try:
                         s_mp = tr.plan.profile.s_of(mp.section, mp.km)
@@ -349,10 +352,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if s_now != s_now:  # nan: not yet on its route
                     continue
                 # tunnel drag: switch the vType when the front passes a portal
-                tf = prof.tunnel_factor_at(s_now)
-                if abs(tf - tr.tf) > 1e-9:
-                    sim.set_type(vid, tr.plan.stock.vtype_id(tf))
-                    tr.tf = tf
+                if tr.tunnels:
+                    tf = prof.tunnel_factor_at(s_now)
+                    if abs(tf - tr.tf) > 1e-9:
+                        sim.set_type(vid, tr.plan.stock.vtype_id(tf))
+                        tr.tf = tf
                 # measuring points
                 if tr.mp_s and prev_s == prev_s:
                     for mp_label, s_mp in tr.mp_s.items():

@@ -11,6 +11,7 @@ solve time, without keeping the samples.
 
 from __future__ import annotations
 
+import csv
 import math
 from pathlib import Path
 from typing import Sequence
@@ -26,12 +27,17 @@ VC_RECORD_FLOATS = [c for c in VC_RECORD_COLUMNS if c not in ("train", "predeces
 
 
 class CsvStream:
-    """Rows (tuples in ``columns`` order) appended to ``path`` every ``chunk_rows`` rows."""
+    """Rows (tuples in ``columns`` order) appended to ``path`` every ``chunk_rows`` rows.
+
+    The file is written with the csv module as pandas writes a frame: minimal quoting, '\\n'
+    line ends, a float as its shortest repr, a missing value (None, or NaN in a float column) as
+    an empty field, a value of a float column (an int too) as a float."""
 
     def __init__(self, path: Path, columns: Sequence[str], float_columns: Sequence[str] = (), chunk_rows: int = 50_000):
         self.path = Path(path)
         self.columns = list(columns)
         self.float_columns = [c for c in float_columns if c in self.columns]
+        self._float_idx = [self.columns.index(c) for c in self.float_columns]
         self.chunk_rows = chunk_rows
         self.rows: list[tuple] = []
         self.written = 0
@@ -44,17 +50,33 @@ class CsvStream:
             self.flush()
 
     def frame(self, rows: list[tuple] | None = None) -> pd.DataFrame:
+        """The rows held in memory (or ``rows``) as a DataFrame with the float columns as float64."""
         df = pd.DataFrame(self.rows if rows is None else rows, columns=self.columns)
         for c in self.float_columns:
             if df[c].dtype != "float64":
                 df[c] = df[c].astype("float64")
         return df
 
+    def _cells(self, row: tuple) -> tuple:
+        for i in self._float_idx:
+            x = row[i]
+            if type(x) is not float or x != x:  # noqa: PLR0124  (NaN)
+                row = list(row)
+                for k in self._float_idx:
+                    y = row[k]
+                    row[k] = None if y is None or y != y else float(y)  # noqa: PLR0124
+                return tuple(row)
+        return row
+
     def flush(self) -> None:
         if not self.rows and self._started:
             return
-        df = self.frame()
-        df.to_csv(self.path, mode="a" if self._started else "w", header=not self._started, index=False)
+        with open(self.path, "a" if self._started else "w", newline="") as f:
+            w = csv.writer(f, lineterminator="\n")
+            if not self._started:
+                w.writerow(self.columns)
+            cells = self._cells
+            w.writerows([cells(r) for r in self.rows] if self._float_idx else self.rows)
         self._started = True
         self.written += len(self.rows)
         self.rows = []

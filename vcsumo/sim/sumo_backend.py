@@ -118,6 +118,7 @@ class SumoBackend:
         self._get = tuple(pick(n) for n in ("getRoadID", "getLanePosition", "getSpeed", "getAcceleration", "getDistance", "getRouteIndex"))
         self._get_leader = pick("getLeader")
         self._get_min_gap = pick("getMinGap")
+        self._get_driving_distance = pick("getDrivingDistance")
 
     def close(self) -> None:
         if self._ls is not None:
@@ -252,6 +253,7 @@ class SumoBackend:
                 best = (oid, gap)
         return best
 
+    @_traci
     def route_leader_indexed(self, vid: str, s_m: float, route: list[str], starts_m: list[float], index: int,
                              on_edge: dict[str, list[tuple[str, float, float]]], max_length_m: float, lookahead_m: float) -> tuple[str, float] | None:
         """:meth:`route_leader` with the candidates taken from the route instead of from every train.
@@ -282,13 +284,15 @@ class SumoBackend:
                     best_approx = approx
         if not cands:
             return None
-        cands.sort(key=lambda c: c[0])
+        if len(cands) > 1:
+            cands.sort(key=lambda c: c[0])
         best: tuple[str, float] | None = None
+        driving = self._get_driving_distance
         for approx, oid, edge, pos, length in cands:
             if best is not None and approx > best[1] + 1.0:
                 break
-            d = self.driving_distance(vid, edge, pos)
-            if d is None or d <= 0.0:
+            d = driving(vid, edge, pos)
+            if d <= INVALID_DISTANCE + 1 or d < -1e8 or d <= 0.0:
                 continue
             gap = d - length
             if gap <= lookahead_m and (best is None or gap < best[1]):

@@ -88,6 +88,10 @@ class BrakingCurveSupervisor:
         self.step_s = step_s
         self.fixed_time_s = model.assumptions.fixed_time_s if fixed_time_s is None else fixed_time_s
         self.curves: dict[str, _Curves] = {}
+        a = model.assumptions
+        self._keep_s = self.fixed_time_s + a.position_report_period_s + 2.0 * step_s
+        """How long an odometer reading is kept, s."""
+        self._dead_s = a.dead_time_s
         self.locking = locking
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
@@ -117,11 +121,12 @@ class BrakingCurveSupervisor:
         if math.isnan(c.first_seen_s):
             c.first_seen_s = time_s
         c.odo_m = odometer_m
-        c.history_t.append(time_s)
+        ts = c.history_t
+        ts.append(time_s)
         c.history_odo.append(odometer_m)
-        keep = self.fixed_time_s + self.model.assumptions.position_report_period_s + 2.0 * self.step_s
-        while len(c.history_t) > 2 and c.history_t[1] <= time_s - keep:
-            c.history_t.popleft()
+        oldest = time_s - self._keep_s
+        while len(ts) > 2 and ts[1] <= oldest:
+            ts.popleft()
             c.history_odo.popleft()
 
     def _moved_since(self, c: _Curves, t_ref: float) -> float:
@@ -193,7 +198,7 @@ class BrakingCurveSupervisor:
             nearest = min(nearest, c.stops[c.next_stop] - s_m)
         if c.end_s is not None:
             nearest = min(nearest, c.end_s - s_m)
-        if nearest > 1.3 * c.braking.stopping_bound(v_mps, a_set.dead_time_s + 2 * dt) + 50.0:
+        if nearest > 1.3 * c.braking.stopping_bound(v_mps, self._dead_s + 2 * dt) + 50.0:
             return Permitted(math.inf, "", d_ma)
         best, reason = math.inf, ""
         # how far ahead a target can matter: the stopping distance with a generous margin
