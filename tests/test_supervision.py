@@ -45,6 +45,34 @@ def test_graded_line_every_stop_served_and_healthy(regional, regime, tmp_path):
     assert len(tr) > 1000 and (res.trains.overspeed_max_kmh == 0).all()
 
 
+OPEN_ENDS = """
+name: open_ends
+line: regional_graded
+services:
+  - {id: OUT, train: regional_emu160, origin: ALD, destination: end, departure: "06:00"}
+  - {id: IN, train: regional_emu160, origin: end, destination: ALD, departure: "06:00"}
+  - {id: HILL, train: regional_emu160, origin: ALD, destination: "branch:hill", departure: "06:04"}
+"""
+
+
+@pytest.mark.parametrize("regime", ["fbs", "mb"])
+def test_trains_to_an_open_end_arrive_there(line_factory, network_factory, regime, tmp_path):
+    """A train whose route ends at an open end of the network ends its trip with a stop SUMO serves
+    there: the supervision brings it to that stop (held short of it by the end-of-track rule it would
+    stand there for ever and every train behind it too), and it leaves the network."""
+    line = line_factory("regional_graded")
+    net = network_factory("regional_graded")
+    tt, path = load_timetable(write(tmp_path / "open.yaml", OPEN_ENDS), line)
+    trains = plan_trains(tt, path, line, net.topology, dt=0.5)
+    res = simulate(Scenario(line, net, trains, regime, step_length_s=0.5), tmp_path / regime)
+    s = res.summary
+    assert s["trains_arrived"] == 3 and s["healthy"], {k: s[k] for k in HEALTH}
+    by = res.trains.set_index("train")
+    for t in trains:
+        if t.final_stop is None:  # it ran to the end of its route: the route length SUMO reports
+            assert by.loc[t.id, "route_length_m"] == pytest.approx(t.profile.starts_m[-1] + t.end_pos_m - t.start_s_m, abs=60.0)
+
+
 def test_sumo_alone_skips_stops_and_the_counters_fire(regional, tmp_path):
     """Without supervision SUMO plans at the level-track deceleration: it skips stations on
     descents and stops at the end of the track by an emergency stop — and the run says so."""

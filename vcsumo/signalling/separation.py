@@ -391,7 +391,7 @@ class RouteBraking:
         return x_stop - s_m
 
     def stopping_bound(self, v_mps: float, dead_time_s: float) -> float:
-        """An upper bound of :meth:`stopping_distance` from anywhere on the route, m: v·T + v²/(2·a)
+        """An upper bound of :meth:`stopping_distance` from anywhere on the route (s ≥ 0), m: v·T + v²/(2·a)
         with a the lowest deceleration of the route (its steepest descent; the brake part at the
         train's top speed, or at v above it), plus a margin for rounding.  Per-step checks use it
         to skip the integration where even this distance cannot matter."""

@@ -114,7 +114,7 @@ class HealthMonitor:
             relative = leader_id is not None and leader_id in self.plans
             br = self._rule(train_id, leader_id).follower if relative else self.braking[train_id]
             floor = h.min_margin_m if h.min_margin_m > -GAP_TOLERANCE_M else -GAP_TOLERANCE_M
-            if gap_m - self._margin_m - br.stopping_bound(v_mps, self._dead_s) < floor:
+            if s_m < 0.0 or gap_m - self._margin_m - br.stopping_bound(v_mps, self._dead_s) < floor:
                 required = (self.relative_gap(train_id, s_m, v_mps, leader_id, gap_m, leader_v_mps) if relative
                             else self.absolute_gap(train_id, s_m, v_mps))
                 return required if self.update(train_id, dt, s_m, v_mps, accel_mps2, gap_m, required, authority_m, driven_by_sumo) else None

@@ -106,7 +106,7 @@ class MergeLocking:
                 d = ap.s_m - s_m
                 if stop is None:
                     br = self.braking[tid]
-                    if d > br.stopping_bound(v, a.dead_time_s) + v * self.lock_time_s + a.position_error_m:
+                    if s_m >= 0.0 and d > br.stopping_bound(v, a.dead_time_s) + v * self.lock_time_s + a.position_error_m:
                         break  # this junction and the ones after it are farther than the train can need
                     stop = br.stopping_distance(s_m, v, a.dead_time_s)
                 if d <= stop + v * self.lock_time_s + a.position_error_m:

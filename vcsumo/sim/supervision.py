@@ -15,7 +15,9 @@ would run faster.  Targets:
   a creep speed of 0.3 m/s until it is there (a curve that ends exactly there would approach it
   for ever; one that ends beyond it hands SUMO a train too fast to stop and SUMO skips the stop:
   both seen on the graded regional line);
-* the end of its route where it has to stop there (end of track);
+* the end of its route where it has to stop there: the end of the track (less the position
+  error, after the dead time), or an open end of the network, where SUMO ends the trip with a
+  stop (served like a scheduled stop);
 * its **end of movement authority** — a merging junction it has to wait at
   (:mod:`vcsumo.sim.interlocking`), and the regime's: FBS — the last signal at least ``overlap_m``
   behind the rear of the train ahead (ETCS L2 with overlap); MB — the rear of the train ahead as
@@ -100,8 +102,12 @@ class BrakingCurveSupervisor:
             if t.final_stop is not None:
                 stops.append(t.final_stop.s_m)
             end_s = None
-            if t.final_stop is None and t.stop_at_end:
-                end_s = t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m)
+            if t.final_stop is None and t.stop_at_end and t.end_pos_m is not None:
+                # an open end of the network: SUMO ends the trip with a stop there (timetable.routes_xml),
+                # which the train must reach like any stop (held 10 m short of it, it would never arrive)
+                stops.append(float(t.profile.starts_m[-1] + t.end_pos_m))
+            elif t.final_stop is None and t.stop_at_end:
+                end_s = t.profile.length_m  # the end of the track
             try:
                 braking = RouteBraking(model, t.stock, t.profile, kind)
             except ValueError:
@@ -198,7 +204,7 @@ class BrakingCurveSupervisor:
             nearest = min(nearest, c.stops[c.next_stop] - s_m)
         if c.end_s is not None:
             nearest = min(nearest, c.end_s - s_m)
-        if nearest > 1.3 * c.braking.stopping_bound(v_mps, self._dead_s + 2 * dt) + 50.0:
+        if s_m >= 0.0 and nearest > 1.3 * c.braking.stopping_bound(v_mps, self._dead_s + 2 * dt) + 50.0:
             return Permitted(math.inf, "", d_ma)
         best, reason = math.inf, ""
         # how far ahead a target can matter: the stopping distance with a generous margin
