@@ -9,6 +9,7 @@ pandas, the receiver-indexed channel against its deliveries.
 
 from __future__ import annotations
 
+import json
 import math
 import random
 
@@ -191,3 +192,24 @@ def test_running_trains_and_the_train_ahead_are_sumos(tmp_path, line_factory, ne
                 compared += 1
                 found += got is not None
     assert compared > 100 and (found > 10) == beyond  # on the graded line trains run beyond SUMO's look-ahead of each other
+
+
+@pytest.mark.sumo
+def test_sumo_fcd_only_on_request_and_trajectories_streamed(in_tmp):
+    """trajectories.csv is written during the run and read back on demand; SUMO's fcd.xml (the same
+    samples) only with --sumo-fcd."""
+    import xml.etree.ElementTree as ET
+
+    from vcsumo.cli.main import main
+
+    assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "fbs", "--out", "a", "-q"]) == 0
+    assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "fbs", "--out", "b", "--sumo-fcd", "-q"]) == 0
+    assert not (in_tmp / "a" / "fcd.xml").exists() and (in_tmp / "b" / "fcd.xml").is_file()
+    for f in ("trajectories.csv", "summary.csv", "stop_events.csv", "violations.csv"):  # the fcd output changes nothing else
+        assert (in_tmp / "a" / f).read_bytes() == (in_tmp / "b" / f).read_bytes(), f
+    traj = pd.read_csv(in_tmp / "a" / "trajectories.csv")
+    fcd = {v.get("id") for v in ET.parse(in_tmp / "b" / "fcd.xml").getroot().iter("vehicle")}
+    assert set(traj.train) == fcd == {"T.1", "T.2", "T.3"}
+    summary = json.loads((in_tmp / "a" / "summary.json").read_text())
+    assert set(summary["loop_cpu_s"]) >= {"sumo", "observation", "supervision", "health", "recording", "io"}
+    assert summary["train_steps"] >= len(traj)  # a row per running train and second, a train-step per running train and step

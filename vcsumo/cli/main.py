@@ -131,8 +131,9 @@ def build_network_cmd(line_spec: str, block_length_m: float | None, force: bool)
 @click.option("--assumptions", default=None, help="Assumption set of the separation model: a shipped name or a .yaml path (default: etcs_typical)")
 @click.option("--seed", type=int, default=42, show_default=True, help=SEED_HELP)
 @click.option("--end-time", default=None, help="Stop the simulation at this time, HH:MM[:SS] or s (default: when every train has arrived)")
+@click.option("--sumo-fcd", is_flag=True, help="Also write SUMO's fcd.xml (the same 1 s samples as trajectories.csv; off by default)")
 def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None, channel: str | None, out: Path | None, step_length: float | None, block_length_m: float | None,
-            assumptions: str | None, seed: int, end_time: str | None) -> None:
+            assumptions: str | None, seed: int, end_time: str | None, sumo_fcd: bool = False) -> None:
     """Run a timetable on a line under one regime; write trajectories, stop events and a summary."""
     if step_length is None:
         step_length = 0.1 if regime == "vc" else 0.5
@@ -170,7 +171,8 @@ def run_cmd(line_spec: str, timetable: str, regime: str, controller: str | None,
                        params={"regime": regime, "controller": controller, "step_length_s": step_length, "block_length_m": block_length_m, "end_time_s": end_s,
                                "assumptions": aset.record()}) as rf:
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {regime}") as upd:
-            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver, end_time_s=end_s, assumptions=aset)
+            scn = Scenario(line, net, trains, regime, step_length_s=step_length, seed=seed, driver=driver, end_time_s=end_s, assumptions=aset,
+                           sumo_fcd=sumo_fcd)
             res = simulate(scn, rf.path, upd)
         log.info("SUMO's messages: %s, %s", out / "sumo_messages.log", out / "sumo_errors.log")
         infra = write_infrastructure(net.topology, rf.path)
