@@ -202,6 +202,8 @@ class _Track:
     """Where each edge of the route starts, m (plain floats for the per-step look-ups)."""
     tunnels: bool = True
     """The route has a tunnel factor other than 1 somewhere (else the vType never changes)."""
+    edges: list[str] = field(default_factory=list)
+    n_edges: int = 0
 
 
 def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] | None = None) -> SimulationResult:
@@ -292,8 +294,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             c_mark = c
             # ---------------------------------------------------------------- observation
             for vid in sim.departed():
-                tr = _Track(plan=plans[vid], departed_at=t, starts=starts_of(plans[vid]),
-                            tunnels=bool((plans[vid].profile.tunnel_factors != 1.0).any()))
+                prof = plans[vid].profile
+                tr = _Track(plan=plans[vid], departed_at=t, starts=starts_of(plans[vid]), tunnels=bool((prof.tunnel_factors != 1.0).any()),
+                            edges=prof.edges, n_edges=len(prof.edges))
                 for mp in scn.measuring_points:
                     try:
                         s_mp = tr.plan.profile.s_of(mp.section, mp.km)
@@ -308,23 +311,22 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     state[vid].arrived_at = t
             active = [v for v in sim.running() if v in state]
             train_steps += len(active)
-            obs = dict(zip(active, sim.observe_all(active)))  # vid -> (edge, lane pos, speed, accel, odometer, route index)
+            observed = sim.observe_all(active)  # (edge, lane pos, speed, accel, odometer, route index)
+            obs = dict(zip(active, observed))
             leads = sim.leaders(active, lookahead)
             on_edge: dict[str, list[tuple[str, float, float]]] | None = None
             rows: list[tuple] = []  # (vid, track, s, speed, accel, edge, lead, gap, controlled)
-            for vid, lead in zip(active, leads):
+            for vid, (edge, lane_pos, speed, accel, odo, ridx), lead in zip(active, observed, leads):
                 tr = state[vid]
-                edge, lane_pos, speed, accel, odo, ridx = obs[vid]
-                prof = tr.plan.profile
                 prev_s = tr.s
-                if not edge.startswith(":") and 0 <= ridx < len(prof.edges) and prof.edges[ridx] == edge:
-                    tr.s = tr.starts[ridx] + lane_pos
-                    tr.sync_s, tr.sync_odo = tr.s, odo
+                if 0 <= ridx < tr.n_edges and tr.edges[ridx] == edge:  # on its route's edge (not inside a junction)
+                    s_now = tr.s = tr.sync_s = tr.starts[ridx] + lane_pos
+                    tr.sync_odo = odo
                 else:
-                    tr.s = tr.sync_s + (odo - tr.sync_odo)
-                s_now = tr.s
+                    s_now = tr.s = tr.sync_s + (odo - tr.sync_odo)
                 if s_now != s_now:  # nan: not yet on its route
                     continue
+                prof = tr.plan.profile
                 # tunnel drag: switch the vType when the front passes a portal
                 if tr.tunnels:
                     tf = prof.tunnel_factor_at(s_now)
@@ -427,10 +429,12 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             # ---------------------------------------------------------------- recording
             if t + 1e-9 >= next_record:
                 if traj is not None:
+                    recs = []
                     for vid, tr, s_now, speed, accel, edge, lead, gap, _c in rows:
                         section, km = tr.plan.profile.km_at(s_now)
-                        traj.append((t, vid, section, round(km, 6), round(s_now, 3), speed, accel, None if math.isinf(gap) else round(gap, 3),
+                        recs.append((t, vid, section, round(km, 6), round(s_now, 3), speed, accel, None if gap == math.inf else round(gap, 3),
                                      lead[0] if lead else None, edge))
+                    traj.extend(recs)
                 next_record += scn.record_period_s
             c = clock()
             cpu["recording"] += c - c_mark

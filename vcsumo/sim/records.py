@@ -49,6 +49,11 @@ class CsvStream:
         if len(self.rows) >= self.chunk_rows:
             self.flush()
 
+    def extend(self, rows: list[tuple]) -> None:
+        self.rows.extend(rows)
+        if len(self.rows) >= self.chunk_rows:
+            self.flush()
+
     def frame(self, rows: list[tuple] | None = None) -> pd.DataFrame:
         """The rows held in memory (or ``rows``) as a DataFrame with the float columns as float64."""
         df = pd.DataFrame(self.rows if rows is None else rows, columns=self.columns)
@@ -60,7 +65,7 @@ class CsvStream:
     def _cells(self, row: tuple) -> tuple:
         for i in self._float_idx:
             x = row[i]
-            if type(x) is not float or x != x:  # noqa: PLR0124  (NaN)
+            if x is not None and (type(x) is not float or x != x):  # noqa: PLR0124  (NaN)
                 row = list(row)
                 for k in self._float_idx:
                     y = row[k]

@@ -94,6 +94,9 @@ class BrakingCurveSupervisor:
         self._keep_s = self.fixed_time_s + a.position_report_period_s + 2.0 * step_s
         """How long an odometer reading is kept, s."""
         self._dead_s = a.dead_time_s
+        self._history = regime == "mb" or self.fixed_time_s > 0.0
+        """Odometer readings are kept only when an authority is built from an older position (MB
+        reports, fixed times): under FBS without fixed times it is built from the present one."""
         self.locking = locking
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
@@ -127,6 +130,8 @@ class BrakingCurveSupervisor:
         if math.isnan(c.first_seen_s):
             c.first_seen_s = time_s
         c.odo_m = odometer_m
+        if not self._history:
+            return
         ts = c.history_t
         ts.append(time_s)
         c.history_odo.append(odometer_m)
@@ -144,7 +149,7 @@ class BrakingCurveSupervisor:
         if i == 0:
             return c.odo_m - odo[0]
         if i >= len(ts):
-            return 0.0
+            return 0.0  # (also every FBS authority without fixed times: t_ref is now)
         t0, t1 = ts[i - 1], ts[i]
         then = odo[i - 1] + (odo[i] - odo[i - 1]) * (t_ref - t0) / max(t1 - t0, 1e-9)
         return c.odo_m - then
