@@ -213,3 +213,26 @@ def test_sumo_fcd_only_on_request_and_trajectories_streamed(in_tmp):
     summary = json.loads((in_tmp / "a" / "summary.json").read_text())
     assert set(summary["loop_cpu_s"]) >= {"sumo", "observation", "supervision", "health", "recording", "io"}
     assert summary["train_steps"] >= len(traj)  # a row per running train and second, a train-step per running train and step
+
+
+def test_overspeed_is_checked_against_the_limit_under_the_whole_train(line_factory, network_factory):
+    """The monitor keeps a train's permitted speed while its front and rear stay on the same edges:
+    driving every route in small steps just above and just below the limit under the whole train,
+    each step is counted exactly as the limit of that very position says."""
+    _, net, trains = _trains(line_factory, network_factory, "regional_graded", "all_stations")
+    model = SeparationModel(load_assumptions())
+    health = HealthMonitor(model, trains)
+    tol = health.tol_mps
+    rnd = random.Random(3)
+    for t in {t.service: t for t in trains}.values():
+        expected, s, k = 0.0, 0.0, 0
+        while s < t.profile.length_m:
+            limit = min(t.profile.speed_limit_train(s, t.stock.length_m), t.stock.max_speed_ms)
+            over = k % 3 == 0
+            v = limit + tol + (1e-6 if over else -1e-6)
+            expected += 0.5 * over
+            health.update(t.id, 0.5, s, v, 0.0, math.inf, math.inf)
+            s += rnd.choice([0.37, 5.0, 31.0, 0.001])
+            k += 1
+        assert health.trains[t.id].overspeed_time_s == pytest.approx(expected)
+        assert health.trains[t.id].overspeed_events == math.ceil(k / 3)

@@ -18,6 +18,7 @@ another train the margin and the position errors remain.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass, field
 
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, strongest_decel
@@ -70,6 +71,9 @@ class HealthMonitor:
         self.collision_rows: list[tuple] = []
         # the hardest service braking without resistance and grade: braking at most this is never beyond service
         self._top_speed = {t.id: t.stock.max_speed_ms for t in trains}
+        self._limits: dict[str, tuple[float, float, float]] = {}
+        """Per train: (from, to, permitted speed): the positions of the front where the speed holds."""
+        self._starts: dict[int, list[float]] = {}
         self._margin_m = model.margin_m
         self._dead_s = model.dead_time_s
         self._service_floor = {t.id: brake_range(t.stock, model.assumptions, "service")[1] for t in trains}
@@ -132,6 +136,27 @@ class HealthMonitor:
             h._cache[key] = a
         return a
 
+    def _speed_limit(self, train_id: str, s_m: float) -> float:
+        """The train's permitted speed with its front at s: the lowest limit under the whole train
+        (SUMO's rule, :meth:`RouteProfile.speed_limit_train`) and its top speed, m/s.  The value is
+        kept for the positions where the front and the rear stay on the same edges (1 mm inside
+        every boundary) and no turnout is near, where it cannot change."""
+        p = self.plans[train_id]
+        prof, length = p.profile, p.stock.length_m
+        limit = min(prof.speed_limit_train(s_m, length), self._top_speed[train_id])
+        starts = self._starts.get(id(prof))
+        if starts is None:
+            starts = self._starts[id(prof)] = [float(x) for x in prof.starts_m]
+        n = len(starts)
+        i1 = min(max(bisect_right(starts, s_m) - 1, 0), n - 1)
+        i0 = min(max(bisect_right(starts, max(s_m - length, 0.0)) - 1, 0), n - 1)
+        lo = max(starts[i1] if i1 > 0 else -math.inf, starts[i0] + length if i0 > 0 else -math.inf) + 1e-3
+        hi = min(starts[i1 + 1] if i1 < n - 1 else math.inf, starts[i0 + 1] + length if i0 < n - 1 else math.inf) - 1e-3
+        if any(lo - length - 1.0 <= ps <= hi + 1.0 for ps, _ in prof.point_limits):
+            lo, hi = math.inf, -math.inf
+        self._limits[train_id] = (lo, hi, limit)
+        return limit
+
     def update(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, required_gap_m: float,
                authority_m: float = math.inf, driven_by_sumo: bool = True) -> bool:
         """One step of one train; True when its gap has just fallen below the safe separation."""
@@ -151,7 +176,8 @@ class HealthMonitor:
                     started = True
         h._below = below
         # permitted speed
-        limit = min(p.profile.speed_limit_train(s_m, p.stock.length_m), self._top_speed[train_id])
+        lim = self._limits.get(train_id)
+        limit = lim[2] if lim is not None and lim[0] < s_m < lim[1] else self._speed_limit(train_id, s_m)
         excess = v_mps - limit
         over = excess > self.tol_mps
         if over:

@@ -153,6 +153,8 @@ class MergeLocking:
             if ap.s_m < s_m:
                 continue
             j = self.junctions[ap.node]
+            if not j.order:
+                continue  # nobody has locked it
             track = ap.track
             if tid in j.order:
                 before = j.order[: j.order.index(tid)]
