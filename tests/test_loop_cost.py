@@ -155,7 +155,7 @@ def test_health_counters_are_those_of_evaluating_every_step(line_factory, networ
 def test_running_trains_and_the_train_ahead_are_sumos(tmp_path, line_factory, network_factory, line, timetable, beyond):
     """The running list kept from departures and arrivals is SUMO's own at every step, and the train
     ahead found from the route's edges is the one a driving distance to every other train finds."""
-    from vcsumo.sim.sumo_backend import SumoBackend, sumo_args
+    from vcsumo.sim.sumo_backend import RouteLeaders, SumoBackend, sumo_args
     from vcsumo.timetable import routes_xml
 
     ln, net, trains = _trains(line_factory, network_factory, line, timetable)
@@ -169,11 +169,14 @@ def test_running_trains_and_the_train_ahead_are_sumos(tmp_path, line_factory, ne
     compared = found = 0
     sync: dict[str, tuple[float, float]] = {}
     with SumoBackend(args, error_log=tmp_path / "err.log") as sim:
+        leaders = RouteLeaders(sim, longest, 30000.0)
         while sim.time < begin + 2400.0 - 1e-9:
             sim.step()
             running = sim.running()
             assert running == sim.train_ids()
-            obs = dict(zip(running, sim.observe_all(running)))
+            observed = sim.observe_all(running)
+            obs = dict(zip(running, observed))
+            leaders.begin_step(running, observed, {t.id: t.stock.length_m for t in trains})
             on_edge: dict = {}
             for vid, o in obs.items():
                 if not o[0].startswith(":"):
@@ -189,9 +192,11 @@ def test_running_trains_and_the_train_ahead_are_sumos(tmp_path, line_factory, ne
                 s = sync[vid][0] + odo - sync[vid][1]
                 got = sim.route_leader_indexed(vid, s, prof.edges, starts[vid], ridx, on_edge, longest, 30000.0)
                 assert got == sim.route_leader(vid, others, 30000.0)
+                assert leaders.leader(vid, s, prof.edges, starts[vid], ridx) == got  # kept from the last step or walked again
                 compared += 1
                 found += got is not None
     assert compared > 100 and (found > 10) == beyond  # on the graded line trains run beyond SUMO's look-ahead of each other
+    assert leaders.kept_answers > compared / 2  # most answers were kept from the step before
 
 
 @pytest.mark.sumo

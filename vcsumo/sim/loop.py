@@ -49,7 +49,7 @@ from vcsumo.sim.records import CsvStream
 from vcsumo.sim.run_results import TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, SimulationResult, collect_results
 from vcsumo.sim.interlocking import MergeLocking
 from vcsumo.sim.supervision import BrakingCurveSupervisor
-from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
+from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, RouteLeaders, SumoBackend, sumo_args
 from vcsumo.sim.sumo_io import write_sumocfg
 from vcsumo.timetable import PlannedTrain, routes_xml
 
@@ -249,7 +249,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             route_starts[key] = [float(x) for x in plan.profile.starts_m]
         return route_starts[key]
 
-    max_length = max(t.stock.length_m for t in scn.trains)
+    lengths = {t.id: t.stock.length_m for t in scn.trains}
+    max_length = max(lengths.values())
     state: dict[str, _Track] = {}
     traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS) if scn.full_outputs else None
     pass_rows: list[tuple] = []
@@ -283,6 +284,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     c_mark = c
     with SumoBackend(args, error_log=out / "sumo_errors.log", label=label) as sim:
         t = sim.time
+        ahead_on_route = RouteLeaders(sim, max_length, lookahead)
         while True:
             # ---------------------------------------------------------------- SUMO
             t0 = time.perf_counter()
@@ -314,7 +316,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             observed = sim.observe_all(active)  # (edge, lane pos, speed, accel, odometer, route index)
             obs = dict(zip(active, observed))
             leads = sim.leaders(active, lookahead)
-            on_edge: dict[str, list[tuple[str, float, float]]] | None = None
+            ahead_on_route.begin_step(active, observed, lengths)
             rows: list[tuple] = []  # (vid, track, s, speed, accel, edge, lead, gap, controlled)
             for vid, (edge, lane_pos, speed, accel, odo, ridx), lead in zip(active, observed, leads):
                 tr = state[vid]
@@ -326,10 +328,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     s_now = tr.s = tr.sync_s + (odo - tr.sync_odo)
                 if s_now != s_now:  # nan: not yet on its route
                     continue
-                prof = tr.plan.profile
                 # tunnel drag: switch the vType when the front passes a portal
                 if tr.tunnels:
-                    tf = prof.tunnel_factor_at(s_now)
+                    tf = tr.plan.profile.tunnel_factor_at(s_now)
                     if abs(tf - tr.tf) > 1e-9:
                         sim.set_type(vid, tr.plan.stock.vtype_id(tf))
                         tr.tf = tf
@@ -340,13 +341,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                             frac = (s_mp - prev_s) / max(s_now - prev_s, 1e-9)
                             pass_rows.append((mp_label, vid, t - dt + frac * dt, speed))
                 if lead is None and len(active) > 1:  # beyond SUMO's look-ahead: the train ahead on the route
-                    if on_edge is None:
-                        on_edge = {}
-                        for oid in active:
-                            o = obs[oid]
-                            if not o[0].startswith(":"):
-                                on_edge.setdefault(o[0], []).append((oid, o[1], plans[oid].stock.length_m))
-                    lead = sim.route_leader_indexed(vid, s_now, prof.edges, tr.starts, ridx, on_edge, max_length, lookahead)
+                    lead = ahead_on_route.leader(vid, s_now, tr.edges, tr.starts, ridx)
                 gap = lead[1] if lead else math.inf
                 if lead is not None and locking is not None and lead[0] in state:
                     g = locking.fouling_gap(vid, s_now, lead[0], state[lead[0]].s)
