@@ -241,3 +241,23 @@ def test_overspeed_is_checked_against_the_limit_under_the_whole_train(line_facto
             k += 1
         assert health.trains[t.id].overspeed_time_s == pytest.approx(expected)
         assert health.trains[t.id].overspeed_events == math.ceil(k / 3)
+
+
+def test_service_floor_is_below_every_service_limit(line_factory, network_factory):
+    """Braking beyond service is looked up only above a floor: the hardest service brake and the
+    running resistance at the lowest speed of the 1 m/s band (+1 m/s) — never above the limit the
+    monitor would find at any speed of the band and any gradient."""
+    from vcsumo.signalling.separation import strongest_decel
+
+    trains = []
+    for line, tt in (("regional_graded", "all_stations"), ("felez_test", "dense"), ("milano_bologna", "base")):
+        trains += _trains(line_factory, network_factory, line, tt)[2][:1]
+    model = SeparationModel(load_assumptions())
+    health = HealthMonitor(model, trains)
+    rnd = random.Random(5)
+    for t in trains:
+        for _ in range(3000):
+            v = rnd.uniform(0.0, t.stock.max_speed_ms)
+            v_band = int(v) + rnd.random()  # the limit cached for the band may come from any speed in it
+            g = rnd.uniform(-0.04, 0.04)
+            assert health.service_floor(t.id, v) <= strongest_decel(t.stock, model.assumptions, "service", v_band + 1.0, g)

@@ -76,7 +76,26 @@ class HealthMonitor:
         self._starts: dict[int, list[float]] = {}
         self._margin_m = model.margin_m
         self._dead_s = model.dead_time_s
-        self._service_floor = {t.id: brake_range(t.stock, model.assumptions, "service")[1] for t in trains}
+        self._service_floor = {t.id: self._floor_terms(t.stock) for t in trains}
+
+    def _floor_terms(self, stock) -> tuple[float, float, float, float, float]:
+        """(hardest service brake, Davis A, B, C at the top of their box, lowest mass) of a train."""
+        box = stock.uncertainty
+        p = stock.params()
+        if box is not None:
+            p = p.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
+        m_low = stock.mass_kg if box is None else box.mass_kg.low
+        return brake_range(stock, self.model.assumptions, "service")[1], p.davis_a_n, p.davis_b_n_per_mps, p.davis_c_n_per_mps2, m_low
+
+    def service_floor(self, train_id: str, v_mps: float) -> float:
+        """A lower bound of :meth:`_service_limit` at speed v, m/s²: the hardest service brake and the
+        running resistance at the lowest speed of v's 1 m/s band + 1 (the limit is taken there or
+        above, on an up-grade or level), a hair below for rounding."""
+        high, a, b, c, m_low = self._service_floor[train_id]
+        if b < 0.0 or c < 0.0:
+            return high
+        u = float(int(v_mps)) + 1.0
+        return (high + (a + b * u + 1.5 * c * u * u) / m_low) * (1.0 - 1e-9)
 
     # ------------------------------------------------------------------------------------------
     def absolute_gap(self, train_id: str, s_m: float, v_mps: float) -> float:
@@ -190,8 +209,9 @@ class HealthMonitor:
         decel = -accel_mps2
         if decel > h.max_decel_mps2:
             h.max_decel_mps2 = decel
-        # the service limit is at least the hardest service brake alone: below that it is not looked up
-        beyond = driven_by_sumo and decel > self._service_floor[train_id] + DECEL_TOLERANCE_MPS2 \
+        # the service limit is at least the hardest service brake and the resistance: below that it is not looked up
+        beyond = driven_by_sumo and decel > self._service_floor[train_id][0] + DECEL_TOLERANCE_MPS2 \
+            and decel > self.service_floor(train_id, v_mps) + DECEL_TOLERANCE_MPS2 \
             and decel > self._service_limit(train_id, s_m, v_mps) + DECEL_TOLERANCE_MPS2
         if beyond and not h._beyond:
             h.beyond_service_events += 1

@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from bisect import bisect_right
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -204,6 +205,9 @@ class _Track:
     """The route has a tunnel factor other than 1 somewhere (else the vType never changes)."""
     edges: list[str] = field(default_factory=list)
     n_edges: int = 0
+    tf_from: float = math.inf
+    tf_to: float = -math.inf
+    """The stretch of the route around the front with one tunnel factor (the last one looked up), m."""
 
 
 def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] | None = None) -> SimulationResult:
@@ -251,6 +255,17 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
 
     lengths = {t.id: t.stock.length_m for t in scn.trains}
     max_length = max(lengths.values())
+    portals: dict[int, list[float]] = {}
+
+    def tunnel_stretch(prof, s_m: float) -> tuple[float, float]:
+        """[from, to) of the route around s where the tunnel factor does not change, m."""
+        key = id(prof)
+        if key not in portals:
+            tfs = [float(x) for x in prof.tunnel_factors]
+            portals[key] = [float(prof.starts_m[i]) for i in range(1, len(tfs)) if tfs[i] != tfs[i - 1]]
+        marks = portals[key]
+        k = bisect_right(marks, s_m)
+        return (marks[k - 1] if k > 0 else -math.inf), (marks[k] if k < len(marks) else math.inf)
     state: dict[str, _Track] = {}
     traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS) if scn.full_outputs else None
     pass_rows: list[tuple] = []
@@ -328,12 +343,13 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     s_now = tr.s = tr.sync_s + (odo - tr.sync_odo)
                 if s_now != s_now:  # nan: not yet on its route
                     continue
-                # tunnel drag: switch the vType when the front passes a portal
-                if tr.tunnels:
+                # tunnel drag: switch the vType when the front passes a portal (looked up off the stretch last found)
+                if tr.tunnels and not tr.tf_from <= s_now < tr.tf_to:
                     tf = tr.plan.profile.tunnel_factor_at(s_now)
                     if abs(tf - tr.tf) > 1e-9:
                         sim.set_type(vid, tr.plan.stock.vtype_id(tf))
                         tr.tf = tf
+                    tr.tf_from, tr.tf_to = tunnel_stretch(tr.plan.profile, s_now)
                 # measuring points
                 if tr.mp_s and prev_s == prev_s:
                     for mp_label, s_mp in tr.mp_s.items():

@@ -42,6 +42,7 @@ import math
 from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from vcsumo.errors import VcsumoError
 from vcsumo.running_time import STOP_CREEP_MPS
@@ -67,8 +68,7 @@ class _Curves:
     history_odo: deque = field(default_factory=deque)
 
 
-@dataclass(frozen=True)
-class Permitted:
+class Permitted(NamedTuple):
     """A train's permitted speed and what set it."""
 
     speed_mps: float
@@ -196,19 +196,23 @@ class BrakingCurveSupervisor:
             return Permitted(math.inf, "")
         a_set = self.model.assumptions
         dt = self.step_s
-        k0 = bisect_right(c.restriction_s, s_m)  # the first restriction ahead
-        while c.next_stop < len(c.stops) and c.stops[c.next_stop] < s_m - 1.0:
+        rs = c.restriction_s
+        k0 = bisect_right(rs, s_m)  # the first restriction ahead
+        stops = c.stops
+        while c.next_stop < len(stops) and stops[c.next_stop] < s_m - 1.0:
             c.next_stop += 1
-        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s)
+        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s) if leader_id is not None else math.inf
         if self.locking is not None:
-            d_ma = min(d_ma, self.locking.authority_distance(train_id, s_m))
+            d_lock = self.locking.authority_distance(train_id, s_m)
+            if d_lock < d_ma:
+                d_ma = d_lock
         nearest = d_ma
-        if k0 < len(c.restriction_s):
-            nearest = min(nearest, c.restriction_s[k0] - s_m)
-        if c.next_stop < len(c.stops):
-            nearest = min(nearest, c.stops[c.next_stop] - s_m)
-        if c.end_s is not None:
-            nearest = min(nearest, c.end_s - s_m)
+        if k0 < len(rs) and rs[k0] - s_m < nearest:
+            nearest = rs[k0] - s_m
+        if c.next_stop < len(stops) and stops[c.next_stop] - s_m < nearest:
+            nearest = stops[c.next_stop] - s_m
+        if c.end_s is not None and c.end_s - s_m < nearest:
+            nearest = c.end_s - s_m
         if s_m >= 0.0 and nearest > 1.3 * c.braking.stopping_bound(v_mps, self._dead_s + 2 * dt) + 50.0:
             return Permitted(math.inf, "", d_ma)
         best, reason = math.inf, ""
