@@ -65,7 +65,9 @@ class HealthMonitor:
         self.model = model
         self.plans = {t.id: t for t in trains}
         self.trains: dict[str, TrainHealth] = {t.id: TrainHealth() for t in trains}
-        self.braking = {t.id: RouteBraking(model, t.stock, t.profile) for t in trains}
+        shared: dict[tuple[int, int], RouteBraking] = {}  # one per rolling stock and route (a service's trains share them)
+        self.braking = {t.id: shared.get((id(t.stock), id(t.profile))) or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile))
+                        for t in trains}
         self.relative: dict[tuple[str, str], RelativeBraking] = {}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
         self.collision_rows: list[tuple] = []

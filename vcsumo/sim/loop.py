@@ -281,7 +281,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
         locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders)
-        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
+        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking, braking=health.braking)
     driver = scn.driver
     if driver is not None and scn.full_outputs and hasattr(driver, "stream_records"):
         driver.stream_records(out)  # the driver's per-step records go to disk as the run goes

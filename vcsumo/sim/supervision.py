@@ -82,7 +82,7 @@ class BrakingCurveSupervisor:
     """Permitted speeds of the trains SUMO drives under ``regime`` ('fbs' or 'mb')."""
 
     def __init__(self, model: SeparationModel, regime: str, trains: list[PlannedTrain], step_s: float, signals: dict[str, list[float]] | None = None,
-                 fixed_time_s: float | None = None, locking=None):
+                 fixed_time_s: float | None = None, locking=None, braking: dict[str, RouteBraking] | None = None):
         if regime not in ("fbs", "mb"):
             raise ValueError(f"braking-curve supervision of regime '{regime}' (fbs or mb)")
         self.model = model
@@ -100,6 +100,8 @@ class BrakingCurveSupervisor:
         self.locking = locking
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
+        braking_of = braking
+        shared: dict[tuple[int, int], RouteBraking] = {}
         for t in trains:
             stops = [x.s_m for x in t.stops]
             if t.final_stop is not None:
@@ -111,8 +113,9 @@ class BrakingCurveSupervisor:
                 stops.append(float(t.profile.starts_m[-1] + t.end_pos_m))
             elif t.final_stop is None and t.stop_at_end:
                 end_s = t.profile.length_m  # the end of the track
-            try:
-                braking = RouteBraking(model, t.stock, t.profile, kind)
+            try:  # the trains' braking under the absolute rule (``braking``: already built, e.g. the health monitor's)
+                braking = (braking_of or {}).get(t.id) or shared.get((id(t.stock), id(t.profile))) \
+                    or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile, kind))
             except ValueError:
                 g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
                 raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
