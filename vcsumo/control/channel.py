@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Annotated, Literal
 
 import numpy as np
@@ -57,14 +57,6 @@ class ChannelConfig(StrictModel):
     seed: int = Field(default=0, ge=0, description="Seed of the channel's random numbers (numpy needs it not negative)")
 
 
-@dataclass(order=True)
-class _InFlight:
-    deliver_at: float
-    seq: int
-    link: tuple[str, str] = field(compare=False)
-    msg: Message = field(compare=False)
-
-
 class Channel:
     """Delivers messages between trains according to a :class:`ChannelConfig`."""
 
@@ -73,7 +65,8 @@ class Channel:
         if self.cfg.model == "empirical" and not self.cfg.samples_s:
             raise ValueError("empirical channel needs samples_s")
         self.rng = np.random.default_rng(self.cfg.seed)
-        self._queue: list[_InFlight] = []
+        self._queue: list[tuple[float, int, str, Message]] = []
+        """Messages in flight as (delivery time, send order, receiver, message): a heap."""
         self._seq = 0
         self._last_sent: dict[str, float] = {}
         self._latest: dict[str, dict[str, Message]] = {}
@@ -122,25 +115,27 @@ class Channel:
                 self.lost += 1
                 continue
             self._seq += 1
-            heapq.heappush(self._queue, _InFlight(t + d, self._seq, (msg.sender, r), msg))
+            heapq.heappush(self._queue, (t + d, self._seq, r, msg))
 
     def advance(self, t: float) -> None:
         """Deliver every message due by time t (to whichever receiver); :meth:`deliver` does this first."""
         queue = self._queue
-        while queue and queue[0].deliver_at <= t + 1e-9:
-            item = heapq.heappop(queue)
-            if any(w.start_s <= item.deliver_at < w.end_s for w in self.cfg.outages) or any(
-                w.start_s <= item.msg.sent_time_s < w.end_s for w in self.cfg.outages
-            ):
+        outages = self.cfg.outages
+        while queue and queue[0][0] <= t + 1e-9:
+            deliver_at, _, receiver, msg = heapq.heappop(queue)
+            if outages and (any(w.start_s <= deliver_at < w.end_s for w in outages) or any(w.start_s <= msg.sent_time_s < w.end_s for w in outages)):
                 self.lost += 1
                 continue
-            sender, receiver = item.link
             links = self._latest.get(receiver)
             if links is None:
                 links = self._latest[receiver] = {}
-            prev = links.get(sender)
-            if prev is None or prev.sent_time_s <= item.msg.sent_time_s:
-                links[sender] = replace(item.msg, received_time_s=item.deliver_at)
+            prev = links.get(msg.sender)
+            if prev is None or prev.sent_time_s <= msg.sent_time_s:
+                if type(msg) is Message:  # (dataclasses.replace without its per-call introspection)
+                    links[msg.sender] = Message(msg.sender, msg.sent_time_s, msg.state, msg.length_m, msg.plan_times_s, msg.plan_positions_m,
+                                                msg.plan_speeds_mps, msg.plan_forces_n, deliver_at)
+                else:
+                    links[msg.sender] = replace(msg, received_time_s=deliver_at)
                 self.delivered += 1
 
     def deliver(self, receiver: str, t: float) -> dict[str, Message]:

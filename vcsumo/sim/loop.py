@@ -80,36 +80,35 @@ class TrainState(NamedTuple):
     """Front-to-rear distance to the train ahead on the route, m (inf if none within look-ahead)."""
 
 
-class _StepTrains(Mapping):
-    """The running trains of one step as a read-only mapping id -> :class:`TrainState`, each built
-    when first asked for (a driver reads its convoys' trains, not every train of a network)."""
+class _StepTrains(dict):
+    """The running trains of one step, id -> :class:`TrainState`, each state built when first asked
+    for (a driver reads its convoys' trains, not every train of a network).  A dict underneath (a
+    membership test or a walk over the ids costs what a dict's does); read it as a mapping."""
 
-    __slots__ = ("_t", "_rows", "_built")
+    __slots__ = ("_t",)
 
     def __init__(self, t: float, rows: dict[str, tuple]):
+        super().__init__(rows)  # id -> (profile, s, speed, accel, edge, leader, gap) until built
         self._t = t
-        self._rows = rows  # id -> (profile, s, speed, accel, edge, leader, gap)
-        self._built: dict[str, TrainState] = {}
 
     def __getitem__(self, vid: str) -> TrainState:
-        ts = self._built.get(vid)
-        if ts is None:
-            prof, s, v, a, edge, lead, gap = self._rows[vid]
-            section, km = prof.km_at(s)
-            ts = self._built[vid] = TrainState(vid, self._t, s, section, km, v, a, edge, lead, gap)
+        row = dict.__getitem__(self, vid)
+        if type(row) is TrainState:
+            return row
+        prof, s, v, a, edge, lead, gap = row
+        section, km = prof.km_at(s)
+        ts = TrainState(vid, self._t, s, section, km, v, a, edge, lead, gap)
+        dict.__setitem__(self, vid, ts)
         return ts
 
     def get(self, vid: str, default=None):
-        return self[vid] if vid in self._rows else default
+        return self[vid] if vid in self else default
 
-    def __contains__(self, vid: object) -> bool:
-        return vid in self._rows
+    def values(self):
+        return [self[k] for k in self]
 
-    def __iter__(self):
-        return iter(self._rows)
-
-    def __len__(self) -> int:
-        return len(self._rows)
+    def items(self):
+        return [(k, self[k]) for k in self]
 
 
 @dataclass(frozen=True)
@@ -117,6 +116,7 @@ class Snapshot:
     time_s: float
     step_s: float
     trains: Mapping[str, TrainState]
+    """Every running train of the step (read it as a mapping: the loop builds each state when asked for)."""
 
 
 class Driver(Protocol):
