@@ -6,9 +6,10 @@ the study's workarounds switched off one at a time.
    but stops the train at the signal within one step (its warning gives the deceleration), and
    again at every step it is commanded on while the signal stays red.
 2. ``first come``: Milano-Bologna, down, merge at Bivio Parma Est, the branch service leads a VC
-   (cbc) convoy, without the planned-order constraint on the merge signal: SUMO gives the junction to
-   the fast follower on the main line, its leader stops at red and the follower, coupled behind,
-   slows down with it.
+   (cbc) convoy, without the planned merge order (``ordered=False``: the approach locking serves the
+   junction first come, first served): the fast follower on the main line locks the junction first,
+   but the locking never lets a convoy follower pass before its predecessor, so both runs agree
+   (before that rule the two trains waited for each other and neither arrived).
 3. ``no handshake``: Firenze-Bologna, up, merge at Bivio Emilia, branch service leads, the follower
    coupled as soon as the leader is inserted (no message received yet).
 4. ``no speed profile``: Milano-Bologna, up, Bivio Venezia -> Bivio Parma Est, main service leads, the
@@ -53,6 +54,9 @@ def mode26_red(tmp: Path) -> dict:
 
         def safe_gap_m(self, train_id: str) -> float:
             return 0.0
+
+        def predecessor_of(self, train_id: str) -> None:
+            return None
 
     line = load_line("firenze_bologna")
     net = build_network(line)

@@ -187,7 +187,7 @@ def test_bad_input_is_one_clear_error(tmp_path):
     def run(*args):
         batch_cmd.main(["--line", "felez_test", "--out", str(tmp_path / "x"), *args], standalone_mode=False)
 
-    with pytest.raises(InputError, match="--regimes: unknown regime 'etcs'"):
+    with pytest.raises(InputError, match=r"--regimes \(item 2\): etcs: Input should be 'fbs', 'mb' or 'vc'"):
         run("--regimes", "fbs,etcs", "--timetables", "test")
     with pytest.raises(InputError, match="--controllers: only the vc regime"):
         run("--regimes", "fbs", "--controllers", "mpc", "--timetables", "test")

@@ -229,7 +229,7 @@ def test_workers_below_one_is_one_error_everywhere(in_tmp, capsys, cmd, workers)
 
 def test_convoy_size_zero_leaves_no_results_folder(in_tmp, capsys):
     assert main(["study", "capacity", "--line", "felez_test", "--convoy-sizes", "0"]) == 2
-    assert "--convoy-sizes: convoy size 0 is outside 1-8" in capsys.readouterr().err
+    assert "--convoy-sizes (item 1): 0: Input should be greater than or equal to 1" in capsys.readouterr().err
     assert not any(in_tmp.iterdir())
 
 

@@ -30,6 +30,10 @@ from vcsumo.route_profile import RouteProfile
 from vcsumo.topology import build_topology
 
 LEADER, FOLLOWER = "leader", "follower"
+PAPER = CBFConfig(distance="fixed", leader_braking="service")
+"""The paper's barrier (eq. 15, d = 1,000 m, the leader's service box): these tests check Terlizzi's
+mechanism as the paper states it; tests/test_cbf_model.py checks the default barrier on the
+separation model."""
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +71,7 @@ def test_barrier_hand_computed():
 
 def test_barrier_model_on_level_track_matches_eq15(stocks):
     lead, fol = stocks
-    cfg = CBFConfig()
+    cfg = PAPER
     model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), cfg, None)
     bl, bf = model.leader.b, model.follower.b
     v_l, v_f = 40.0, 35.0
@@ -89,7 +93,7 @@ def test_barrier_model_on_level_track_matches_eq15(stocks):
 def test_barrier_monotone_in_states(stocks, profile):
     """b decreases when the leader is further/faster and increases when the follower is (eq. 15)."""
     lead, fol = stocks
-    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), CBFConfig(), profile)
+    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), PAPER, profile)
     rng = np.random.default_rng(5)
     for _ in range(200):
         s_f = rng.uniform(0, 80000)
@@ -119,7 +123,7 @@ def test_emergency_controller_stops_before_the_robust_stop_point(stocks, profile
     """Under K_E^F every train in the box stops before S^F (the follower term of b')."""
     lead, fol = stocks
     rng = np.random.default_rng(seed)
-    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), CBFConfig(), profile)
+    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), PAPER, profile)
     fb = BoxBounds.from_stock(fol)
     dt = 0.1
     for _ in range(5):
@@ -138,7 +142,7 @@ def test_emergency_controller_stops_before_the_robust_stop_point(stocks, profile
 def test_emergency_braking_keeps_the_true_barrier_nonpositive(stocks, profile):
     """Theorem V.2: from a safe state, leader full brake + follower K_E^F stays safe (gap ≥ d)."""
     lead, fol = stocks
-    cfg = CBFConfig()
+    cfg = PAPER
     model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), cfg, profile)
     fb = BoxBounds.from_stock(fol)
     rng = np.random.default_rng(2)
@@ -171,7 +175,7 @@ def _msg(t: float, s: float, v: float, rx: float = math.nan) -> Message:
 
 def test_rlp_predictor_lower_bounds_the_leader(stocks, profile):
     lead, fol = stocks
-    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), CBFConfig(), profile)
+    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), PAPER, profile)
     rng = np.random.default_rng(7)
     for _ in range(20):
         p = sample_params(lead, rng, corner=True)
@@ -220,7 +224,7 @@ def test_delay_estimator_quantile_of_exponential_delays():
 def _run_closed_loop(stocks, profile, rng, nominal_policy, channel: ChannelConfig, duration_s: float, brake_at: float, brake_level: float, gap0: float, v0: float, s_f0: float, dt: float = 0.1, lag: bool = True, jerk: bool = True):
     lead, fol = stocks
     # hold the brake until the first packet (the follower starts right at the barrier)
-    sup = CBFSupervisor(lead, fol, CBFConfig(brake_without_leader_data=True), leader_id=LEADER)
+    sup = CBFSupervisor(lead, fol, PAPER.model_copy(update={"brake_without_leader_data": True}), leader_id=LEADER)
     model = sup.model_for(profile)
     # start safe: b(x0) ≤ 0 with a random extra gap on top of the smallest safe gap
     lo, hi = s_f0 + 1202.0, s_f0 + 80000.0
@@ -272,7 +276,7 @@ def test_supervisor_is_safety_compliant_from_an_unsafe_state(stocks, profile):
     """Definition 4 (ii): from b(x0) > 0 the true barrier does not increase while positive."""
     lead, fol = stocks
     rng = np.random.default_rng(42)
-    sup = CBFSupervisor(lead, fol, CBFConfig(), leader_id=LEADER)
+    sup = CBFSupervisor(lead, fol, PAPER, leader_id=LEADER)
     pl, pf = sample_params(lead, rng), sample_params(fol, rng)
     plant_l = TrainPlant(pl, PlantState(20000.0, 40.0), profile)
     plant_f = TrainPlant(pf, PlantState(18000.0, 60.0), profile)
@@ -297,7 +301,7 @@ def test_supervisor_is_safety_compliant_from_an_unsafe_state(stocks, profile):
 
 def test_supervisor_passes_nominal_when_far_and_tmax_rule_fires(stocks, profile):
     lead, fol = stocks
-    sup = CBFSupervisor(lead, fol, CBFConfig(), leader_id=LEADER)
+    sup = CBFSupervisor(lead, fol, PAPER, leader_id=LEADER)
     nom = Command(force_n=1234.0, mode="mpc")
 
     def obs(t: float, received: dict) -> Observation:
@@ -360,7 +364,7 @@ def test_fast_paths_compute_the_documented_formulas_exactly(profile, lag, jerk):
     stock = load_rolling_stock("etr1000")
     fb = dc_replace(BoxBounds.from_stock(stock), traction_lag_s=lag, max_jerk_mps3=jerk)
     lb = BoxBounds.from_stock(stock)
-    cfg = CBFConfig()
+    cfg = PAPER
     m = BarrierModel(lb, fb, cfg, profile)
     rng = np.random.default_rng(3)
     for _ in range(400):
@@ -395,7 +399,7 @@ def test_fast_paths_compute_the_documented_formulas_exactly(profile, lag, jerk):
 def test_supervisor_bounds_equal_the_rlp_branches(stocks, profile):
     """LeaderRLPPredictor.bounds (states and S^L written out) equals its definition on the branches."""
     lead, fol = stocks
-    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), CBFConfig(), profile)
+    model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(fol), PAPER, profile)
     pred = LeaderRLPPredictor(model, keep=2)
     for k, (s0, v0) in enumerate([(20000.0, 80.0), (20041.0, 79.5), (20080.0, 79.0)]):
         pred.update(Message(sender=LEADER, sent_time_s=0.5 * k, state=TrainStateMsg(0.5 * k, s0, v0, 0.0, 0.0), length_m=lead.length_m))

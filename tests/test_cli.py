@@ -150,7 +150,7 @@ def test_every_help_shows_an_example_and_study_names_all_its_subcommands(capsys)
             assert next(p for p in cmd.params if p.name == "seed").help, path
     study = cli.commands["study"]
     first = study.help.split("\n\n")[0]
-    assert set(study.commands) == {"capacity", "headway", "junction", "safety", "run"}
+    assert set(study.commands) == {"capacity", "headway", "junction", "safety", "tradeoff", "run"}
     assert all(name in first for name in study.commands)
 
 

@@ -140,7 +140,8 @@ def test_a_new_controller_is_one_registry_entry(acc_registered, tmp_path):
     assert stack.d_min_m == 150.0 and stack.coupled_gap_m(50.0) == 200.0 and stack.guard.d_min_m == 150.0
     # composed with the CBF like the shipped families
     sup = build_follower_stack("cbf-acc", StackContext(ego=STOCK, predecessor=STOCK, step_s=DT))
-    assert sup.supervisor is not None and sup.d_min_m == 1000.0
+    # (the CBF's d on the separation model is 70 m, margin + 2 position errors: the stack keeps the larger d_min)
+    assert sup.supervisor is not None and sup.supervisor.safety_distance_m == 70.0 and sup.d_min_m == 80.0
 
 
 def test_registered_controllers_have_their_default_files_and_plans_flag():

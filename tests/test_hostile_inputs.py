@@ -89,11 +89,9 @@ def _load_guard(p: Path):
 
 
 def _load_study(p: Path):
-    from vcsumo.cli.study_files import load_study, study_arguments
+    from vcsumo.cli.study_files import load_study
 
-    st_ = load_study(p)
-    study_arguments(st_, p, None)
-    return st_
+    return load_study(p)
 
 
 def _load_delays(p: Path):

@@ -287,11 +287,10 @@ def test_fuzzed_network_files_never_crash(tmp_path_factory, path, value):
 
 
 def test_study_files_name_a_network_only_for_batch(tmp_path):
-    from vcsumo.cli.study_files import load_study, study_arguments
+    from vcsumo.cli.study_files import load_study
 
     batch = write(tmp_path / "b.yaml", "study: batch\nline: italy_av_north\ntimetables: routes/italy_av_north/full_day.yaml\nregimes: [fbs]\nseeds: 1\n")
-    args = study_arguments(load_study(batch), batch, None)
-    assert args[:3] == ["batch", "--line", "italy_av_north"]
+    assert load_study(batch).line == "italy_av_north"
     headway = write(tmp_path / "h.yaml", "study: headway\nline: italy_av_north\n")
     with pytest.raises(InputError) as exc:
         load_study(headway)

@@ -190,7 +190,7 @@ def test_safety_chart_shows_a_zero_share(results, tmp_path):
     fig = plot_safety(results / "safety" / "report" / "safety_runs.csv", tmp_path / "s.png")
     ax2 = fig.axes[1]
     labels = [t.get_text() for t in ax2.texts]
-    shares = [float((runs.loc[runs.controller == c, col] > 0).mean()) for col in ("gap_violations", "collisions") for c in ("cbc", "cbf-cbc")]
+    shares = [float((runs.loc[runs.controller == c, col] > 0).mean()) for col in ("separation_violations", "collisions") for c in ("cbc", "cbf-cbc")]
     assert shares[1] == 0 and shares[3] == 0  # the CBF-supervised controller: no violation, no collision
     assert sorted(labels) == sorted(share_text(v) for v in shares) and labels.count("0") == shares.count(0.0)
     zeros = [ln for ln in ax2.lines if isinstance(ln, Line2D) and list(ln.get_ydata()) == [0.0]]

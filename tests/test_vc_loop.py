@@ -13,7 +13,6 @@ from vcsumo.line import load_line
 from vcsumo.sim.network import build_network
 from vcsumo.sim.loop import Scenario, simulate
 from vcsumo.timetable import load_timetable, plan_trains
-from vcsumo.control.guard import guard_speed
 from vcsumo.sim.vc_driver import make_vc_driver
 
 from .conftest import write
@@ -85,16 +84,6 @@ def test_vc_follows_closer_than_moving_block_allows(tmp_path):
     assert res.trains.set_index("train").loc["F", "arrival_s"] - res.trains.set_index("train").loc["L", "arrival_s"] < 30.0
 
 
-def test_guard_speed_is_the_relative_braking_distance():
-    # follower 100 m behind the leader's rear, both at 20 m/s, leader brakes at 1.25, follower at 0.92, d_min 4, Δt 0.1
-    v = guard_speed(0.0, 0.92, 0.1, 100.0 + 68.0, 20.0, 68.0, 1.25, 4.0)
-    room = 100.0 + 400.0 / 2.5 - 4.0
-    assert 1.5 * v * 0.1 + v * v / (2 * 0.92) == pytest.approx(room, rel=1e-9)
-    # a slower or closer leader leaves less room; a standing leader 3 m ahead leaves none
-    assert guard_speed(0.0, 0.92, 0.1, 168.0, 10.0, 68.0, 1.25, 4.0) < v
-    assert guard_speed(0.0, 0.92, 0.1, 68.0 + 3.0, 0.0, 68.0, 1.25, 4.0) == 0.0
-
-
 def test_cli_vc_run_and_bad_controller(in_tmp, capsys):
     tt = write(in_tmp / "pair.yaml", PAIR.format(dep=0))
     assert main(["run", "--line", "felez_test", "--timetable", str(tt), "--regime", "vc", "--controller", "cbc", "--out", "r"]) == 0
@@ -119,16 +108,3 @@ def test_convoy_with_unequal_repeats_is_rejected(tmp_path):
     with pytest.raises(InputError) as exc:
         make_vc_driver(tt, p, trains, "cbc", 0.1)
     assert "convoys[0].services" in str(exc.value) and "repeat a different number of times" in str(exc.value)
-
-
-def test_guard_decelerations_are_conservative():
-    from vcsumo.rolling_stock import load_rolling_stock
-    from vcsumo.control.guard import guaranteed_decel, strongest_decel
-
-    p = load_rolling_stock("etr1000").params()
-    # follower: emergency force over M·rho, only A of the resistance, the downhill counted against it
-    assert guaranteed_decel(p, 80.0, 1.2, -0.015) == pytest.approx((1.2 * 5e5 + 8800 - 5e5 * 9.81 * 0.015) / (5e5 * 1.04))
-    assert guaranteed_decel(p, 80.0, 1.2, 0.010) == guaranteed_decel(p, 80.0, 1.2, 0.0)
-    # leader: resistance at its speed (in tunnel) and the uphill help it stop sooner
-    assert strongest_decel(p, 80.0, 1.2, 0.015, 1.5) > 1.2 + 9.81 * 0.015
-    assert strongest_decel(p, 80.0, 1.2, -0.02) > 1.2

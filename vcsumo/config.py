@@ -1,17 +1,25 @@
 """Strict, typed configuration loaded from YAML files.
 
 Every input file is parsed into a frozen pydantic model whose unknown keys are rejected
-(``extra="forbid"``).  Problems become one :class:`~vcsumo.errors.InputError` naming the file
-and the field, e.g. ``networks/x/line.yaml: stations[2].km: ...``.
+(``extra="forbid"``).  Problems become :class:`~vcsumo.errors.InputError` naming the file and the
+field, e.g. ``networks/x/line.yaml: stations[2].km: ...`` (several problems: one each,
+:class:`InputProblems`).
+
+The options of a command are a :class:`CommandConfig`: the same model is built from a study file
+(:meth:`CommandConfig.from_file`) and from the command line (:meth:`CommandConfig.from_options`),
+so every bound is checked once for both, and a problem names the file and field or the option.
 """
 
 from __future__ import annotations
 
+import difflib
+import re
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Callable, Iterator, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError
 
 from vcsumo.errors import InputError
 
@@ -185,7 +193,7 @@ def read_yaml(path: Path) -> Any:
 
 
 def parse_model(model: type[M], data: Any, path: str | Path | None) -> M:
-    """Validate ``data`` against ``model``; the first error becomes one InputError."""
+    """Validate ``data`` against ``model``; its problems become InputErrors (:func:`validation_error`)."""
     if data is None:
         raise InputError(path, None, f"the file is empty (expected a mapping of {model.__name__} fields)")
     if not isinstance(data, dict):
@@ -198,29 +206,61 @@ def parse_model(model: type[M], data: Any, path: str | Path | None) -> M:
         raise InputError(path, None, f"invalid value: {exc}") from None
 
 
-def validation_error(exc: ValidationError, path: str | Path | None, model: type[BaseModel] | None = None, skip: tuple[str, ...] = ()) -> InputError:
-    """The first problem of a pydantic ValidationError as one InputError naming the file and field.
+class InputProblems(InputError):
+    """Several problems of one input (a file or the options of one command).
 
-    ``skip``: names that are left out when they lead the location (the tag of a discriminated
-    union, e.g. ``capacity`` in ``('capacity', 'convoy_sizes', 1)``).
+    ``str()`` is the first problem and how many more there are (one line, as every InputError);
+    :attr:`problems` holds every one of them as its own InputError, which the command line prints
+    one per line.
+    """
+
+    def __init__(self, problems: list[InputError]):
+        first = problems[0]
+        more = f" (and {len(problems) - 1} more problem{'s' if len(problems) > 2 else ''})"
+        super().__init__(first.path, first.field, first.message + more)
+        self.problems = problems
+
+
+MAX_PROBLEMS_SHOWN = 20
+"""Most problems of one input reported, one line each (a file of garbage would give thousands)."""
+
+
+def validation_error(exc: ValidationError, path: str | Path | None, model: type[BaseModel] | None = None, skip: tuple[str, ...] = (),
+                     rename: Callable[[tuple[Any, ...]], str] | None = None) -> InputError:
+    """Every problem of a pydantic ValidationError as InputErrors naming the file and the field.
+
+    One problem: one InputError; several: an :class:`InputProblems` holding each (the first
+    :data:`MAX_PROBLEMS_SHOWN`).  ``skip``: names that are left out when they lead the location
+    (the tag of a discriminated union, e.g. ``capacity`` in ``('capacity', 'convoy_sizes', 1)``).
+    ``rename``: the name shown for a location instead of its field path (a command-line option).
     """
     errors = exc.errors()
-    first = errors[0]
-    loc = tuple(first["loc"])
+    problems = [_problem(e, path, model, skip, rename) for e in errors[:MAX_PROBLEMS_SHOWN]]
+    return problems[0] if len(problems) == 1 else InputProblems(problems)
+
+
+def _problem(error: Any, path: str | Path | None, model: type[BaseModel] | None, skip: tuple[str, ...],
+             rename: Callable[[tuple[Any, ...]], str] | None) -> InputError:
+    loc = tuple(error["loc"])
     if loc and loc[0] in skip:
         loc = loc[1:]
-    cause = (first.get("ctx") or {}).get("error")
+    cause = (error.get("ctx") or {}).get("error")
     if isinstance(cause, FieldProblem):
         loc += tuple(cause.field.split("."))
-    msg = " ".join(str(first["msg"]).split())
-    if first["type"] == "extra_forbidden":
+    msg = " ".join(str(error["msg"]).split())
+    unknown = error["type"] == "extra_forbidden"
+    if unknown:
         allowed = _allowed_keys(model, loc[:-1]) if model is not None else []
-        msg = "unknown key" + (" (allowed keys: " + ", ".join(allowed) + ")" if allowed else "")
-    elif first["type"] == "missing":
-        msg = "required field is missing"
+        close = difflib.get_close_matches(str(loc[-1]), allowed, n=1) if loc else []
+        msg = "unknown key" + (f" (did you mean '{close[0]}'?)" if close else "") + (" (allowed keys: " + ", ".join(allowed) + ")" if allowed else "")
+    elif error["type"] == "missing":
+        msg = "required option is missing" if rename else "required field is missing"
     msg = msg.removeprefix("Value error, ").removeprefix("Assertion failed, ")
-    more = f" (and {len(errors) - 1} more problem{'s' if len(errors) > 2 else ''})" if len(errors) > 1 else ""
-    return InputError(path, field_path(loc, keep_last=first["type"] == "extra_forbidden") or None, msg + more)
+    given = error.get("input")
+    if rename and error["type"] not in ("missing", "value_error") and isinstance(given, (str, int, float)):
+        msg = f"{given}: {msg}"  # an option's value is shown: the command line is gone once the error is printed
+    where = rename(loc) if rename and loc else field_path(loc, keep_last=unknown) or None
+    return InputError(path, where, msg)
 
 
 def _yaml_kind(data: Any) -> str:
@@ -267,3 +307,124 @@ def _inner_model(annotation: Any) -> Any:
         if found is not None:
             return found
     return None
+
+
+# --------------------------------------------------------------------------------------------
+# The options of a command: one model for the command line and for study files
+
+
+def option_name(model: type[BaseModel], field: str) -> str:
+    """The command-line option of a field: ``json_schema_extra["option"]``, else ``--`` + the name
+    with dashes (``block_length_m`` → ``--block-length-m``)."""
+    info = model.model_fields.get(field)
+    extra = info.json_schema_extra if info is not None and isinstance(info.json_schema_extra, dict) else {}
+    return str(extra.get("option") or "--" + field.replace("_", "-"))
+
+
+def looks_like_path(spec: str) -> bool:
+    """Whether a name given in a file is a path (``my.yaml``, ``lines/x``, ``./x``) rather than a shipped name."""
+    return spec.endswith((".yaml", ".yml")) or "/" in spec or "\\" in spec or spec.startswith((".", "~"))
+
+
+def resolve_path(spec: str, base: Path) -> str:
+    """A path written in a file at ``base`` is relative to that file; names and absolute paths stay."""
+    if not isinstance(spec, str) or not spec or Path(spec).is_absolute():
+        return spec
+    try:
+        if looks_like_path(spec) or (base / spec).exists():
+            return str(base / spec)
+    except (OSError, ValueError):  # a name the OS rejects is left for the loader to report
+        pass
+    return spec
+
+
+class CommandConfig(StrictModel):
+    """The options of one command, one field each, with bounds, unit and description.
+
+    Built from the command line (:meth:`from_options`: a problem is ``--option-name: ...``) or from
+    a study file (:meth:`from_file`: ``<file>: <field>: ...``, paths relative to the file).  Fields
+    whose ``json_schema_extra`` has ``"path": True`` hold a file name or a shipped name (a list of
+    them, or ``NAME:PARAMS`` with ``"path": "spec"``); ``"option"`` names the command-line option
+    when it is not ``--`` + the field name.
+    """
+
+    _source: Path | None = PrivateAttr(default=None)
+
+    @property
+    def source(self) -> Path | None:
+        """The study file this configuration was read from (None: the command line)."""
+        return self._source
+
+    @property
+    def out_path(self) -> Path | None:
+        """The results folder given (``out``), as a path; None: the command's default."""
+        out = getattr(self, "out", None)
+        return Path(out) if out else None
+
+    def recorded_inputs(self) -> dict[str, Path]:
+        """Input files a results folder records besides those the command loads: the study file."""
+        return {"study": self._source} if self._source is not None else {}
+
+    @classmethod
+    def option_label(cls, loc: tuple[Any, ...]) -> str:
+        """How a problem at ``loc`` is named on the command line: ``--convoy-sizes`` (item 2)."""
+        head = option_name(cls, str(loc[0]))
+        items = [f"item {p + 1}" for p in loc[1:] if isinstance(p, int)]
+        return head + (f" ({', '.join(items)})" if items else "")
+
+    @classmethod
+    def from_options(cls, values: dict[str, Any]) -> "CommandConfig":
+        """Validate the options given on the command line (field name → value; absent: the default)."""
+        try:
+            return cls.model_validate(values)
+        except ValidationError as exc:
+            raise validation_error(exc, None, cls, rename=cls.option_label) from None
+        except (TypeError, ArithmeticError, RecursionError) as exc:
+            raise InputError(None, None, f"invalid option value: {exc}") from None
+
+    @classmethod
+    def resolve_paths(cls, data: dict[str, Any], base: Path) -> dict[str, Any]:
+        """``data`` with the path fields made relative to ``base`` (the study file's folder)."""
+        out = dict(data)
+        for name, info in cls.model_fields.items():
+            kind = (info.json_schema_extra or {}).get("path") if isinstance(info.json_schema_extra, dict) else None
+            if not kind or out.get(name) is None:
+                continue
+            fix = (lambda v: _resolve_spec(v, base)) if kind == "spec" else (lambda v: resolve_path(v, base))
+            value = out[name]
+            out[name] = [fix(v) for v in value] if isinstance(value, list) else fix(value)
+        return out
+
+    @classmethod
+    def from_file(cls, data: dict[str, Any], path: Path) -> "CommandConfig":
+        """Validate a study file's mapping; paths in it are relative to the file."""
+        path = Path(path)
+        cfg = parse_model(cls, cls.resolve_paths(data, path.resolve().parent), path)
+        cfg._source = path
+        return cfg
+
+    def problem(self, field: str, message: str) -> InputError:
+        """An InputError about ``field``: naming the study file and field, or the option."""
+        if self._source is not None:
+            return InputError(self._source, field, message)
+        loc = tuple(int(x) if x.isdigit() else x for x in re.findall(r"[^.\[\]]+", field))
+        return InputError(None, self.option_label(loc), message)
+
+    @contextmanager
+    def blame(self, field: str) -> Iterator[None]:
+        """Input errors raised inside that name no file (a name looked up, e.g. an unknown line) are
+        about ``field``: they are raised again naming the study file and field, or the option."""
+        try:
+            yield
+        except InputError as exc:
+            if exc.path is not None:
+                raise
+            raise self.problem(field, exc.message) from None
+
+
+def _resolve_spec(spec: str, base: Path) -> str:
+    """``NAME:PARAMS`` (a controller and its parameter file): a path after the colon is relative to ``base``."""
+    if not isinstance(spec, str) or ":" not in spec:
+        return resolve_path(spec, base) if isinstance(spec, str) and looks_like_path(spec) else spec
+    name, params = spec.split(":", 1)
+    return f"{name}:{resolve_path(params, base)}"

@@ -25,7 +25,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from vcsumo.config import StrictModel, is_dir, is_file, load_model
+from vcsumo.config import MAX_PROBLEMS_SHOWN, InputProblems, StrictModel, is_dir, is_file, load_model
 from vcsumo.errors import InputError
 
 TrackLayout = Literal["double", "single"]
@@ -355,7 +355,6 @@ def load_line(spec: str | Path) -> Line:
     data = load_model(LineFile, path)
     problems = check_line(data)
     if problems:
-        field, msg = problems[0]
-        more = f" (and {len(problems) - 1} more problem{'s' if len(problems) > 2 else ''})" if len(problems) > 1 else ""
-        raise InputError(path, field, msg + more)
+        errors = [InputError(path, field, msg) for field, msg in problems[:MAX_PROBLEMS_SHOWN]]
+        raise errors[0] if len(errors) == 1 else InputProblems(errors)
     return Line(data, path)

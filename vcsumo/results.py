@@ -7,23 +7,32 @@ and folders the command created around it (an empty ``results/``) are removed to
 killed outright (SIGKILL) cannot clean up: its ``<out>.partial-<pid>`` is removed by the next
 command writing to the same place, once no process with that pid is alive
 (:func:`remove_stale_partials`).
-``meta.json`` records the command, the input files (with their SHA-256), the versions of vcsumo,
-SUMO, CasADi, numpy, pandas and Python, the seed and the wall time.
+``meta.json`` records the command, the input files (with their SHA-256; a study file run with
+``vcsumo study run`` through :func:`recording`), the versions of vcsumo, SUMO, CasADi, numpy,
+pandas and Python, the seed and the wall time.
+
+JSON files are written by :func:`write_json` (a missing or non-finite number is ``null``: ``NaN``
+is not JSON) and tables by :func:`write_csv` (counts as integers, measures without float noise).
 """
 
 from __future__ import annotations
 
+import contextvars
 import datetime as _dt
 import hashlib
 import json
+import math
 import os
 import platform
 import re
 import shutil
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
+
+import pandas as pd
 
 from vcsumo.errors import VcsumoError
 
@@ -124,10 +133,7 @@ def remove_stale_partials(folder: Path, name: str | None = None, pids: set[int] 
 def write_meta(folder: Path, inputs: dict[str, Path] | None = None, seed: int | None = None, params: dict[str, Any] | None = None,
                wall_time_s: float = 0.0, extra: dict[str, Any] | None = None) -> None:
     """``meta.json`` of a results folder: command, time, versions, inputs with SHA-256, seed, parameters."""
-    inputs = dict(inputs or {})
-    study = os.environ.get("VCSUMO_STUDY_FILE")
-    if study:
-        inputs.setdefault("study", Path(study))
+    inputs = {**_RECORDING.get(), **(inputs or {})}
     meta = {
         "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
         "created": _dt.datetime.now().isoformat(timespec="seconds"),
@@ -138,10 +144,84 @@ def write_meta(folder: Path, inputs: dict[str, Path] | None = None, seed: int | 
         "parameters": params or {},
     }
     meta.update(extra or {})
-    text = json.dumps(meta, indent=2, default=str)
-    tmp = Path(folder) / f".meta.json.tmp-{os.getpid()}"
-    tmp.write_text(text)
-    os.replace(tmp, Path(folder) / "meta.json")
+    write_json(Path(folder) / "meta.json", meta)
+
+
+_RECORDING: contextvars.ContextVar[dict[str, Path]] = contextvars.ContextVar("recorded_inputs", default={})
+
+
+@contextmanager
+def recording(inputs: dict[str, Path]) -> Iterator[None]:
+    """Results folders written inside also record ``inputs`` in their ``meta.json`` (the study file
+    a command was run from, when a library function writes its own ``meta.json``)."""
+    token = _RECORDING.set({**_RECORDING.get(), **inputs})
+    try:
+        yield
+    finally:
+        _RECORDING.reset(token)
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite or missing number as None and numpy scalars as Python numbers."""
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if hasattr(value, "item") and not isinstance(value, (str, bytes)) and getattr(value, "ndim", None) == 0:
+        value = value.item()  # numpy scalar
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if value is pd.NA or value is pd.NaT:
+        return None
+    return value
+
+
+def write_json(path: Path, value: Any) -> None:
+    """Write ``value`` as JSON, whole or not at all; NaN and infinities become ``null`` (valid JSON)."""
+    path = Path(path)
+    text = json.dumps(json_safe(value), indent=2, default=str, allow_nan=False)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text + "\n")
+    os.replace(tmp, path)
+
+
+COUNT_WORDS = ("violations", "collisions", "brakes", "brakings", "runs", "failed", "simulations", "scenarios", "size", "breaches", "interventions",
+               "activations", "trains", "count", "steps", "events", "probes", "stops", "overruns", "teleports", "warnings", "cases", "seed")
+"""Words of a column name that make it a count (stored as an integer when every value is whole)."""
+SIGNIFICANT_DIGITS = 12
+"""Digits a measure is written with: float noise (``-23.599999999999994``) goes, the resolution stays."""
+
+
+def is_count_column(column: str) -> bool:
+    """A column holding counts: no unit suffix (``_s``, ``_m`` ...) and a counting word in its name."""
+    if re.search(r"_(s|m|km|mps|mps2|kmh|pct|min|h|n|w|kg|per_h|trains_per_h)$", column):
+        return False
+    return any(w in column for w in COUNT_WORDS)
+
+
+def table_for_csv(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` as written: counts of whole numbers as integers (a missing count stays empty)."""
+    out = df.copy()
+    for c in out.columns:
+        col = out[c]
+        if col.dtype.kind == "f" and is_count_column(str(c)):
+            finite = col.dropna()
+            if len(finite) and (finite == finite.round()).all() and finite.abs().max() < 2**53:
+                out[c] = col.astype("Int64")
+    return out
+
+
+def _float_text(x: float) -> str:
+    return repr(float(f"{x:.{SIGNIFICANT_DIGITS}g}"))  # shortest text of the rounded value: -23.6, 1.0
+
+
+def write_csv(df: pd.DataFrame, path: Path) -> None:
+    """Write a results table: whole or not at all, counts as integers, measures to
+    :data:`SIGNIFICANT_DIGITS` significant digits."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    table_for_csv(df).to_csv(tmp, index=False, float_format=_float_text)
+    os.replace(tmp, path)
 
 
 class ResultsFolder:

@@ -165,16 +165,18 @@ class RollingStock(StrictModel):
         """SUMO vType id; tunnels use a variant with the aerodynamic term scaled (see vtype_xml)."""
         return self.name if abs(tunnel_factor - 1.0) < 1e-9 else f"{self.name}@tf{tunnel_factor:.2f}"
 
-    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail") -> str:
+    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail", min_gap_m: float = 5.0) -> str:
         """The SUMO vType element (Rail model, custom train type).
 
         SUMO's units: maxPower kW, maxTraction kN, resCoef_* kN, kN/(m/s), kN/(m/s)²; mass kg.
         SUMO plans braking with ``decel`` and may brake up to ``decel + R(v)/(M·mf)``; see the
-        README (physics) for the gaps between SUMO's Rail model and eq. 1–5.
+        README (physics) for the gaps between SUMO's Rail model and eq. 1–5.  ``min_gap_m``: the gap
+        SUMO leaves behind a standing train (a convoy follower berths that far behind its leader in
+        a shared platform; the runs set it to the separation model's margin and position errors).
         """
         return (
             f'<vType id="{self.vtype_id(tunnel_factor)}" vClass="{vclass}" carFollowModel="Rail" trainType="custom" '
-            f'length="{self.length_m:.3f}" minGap="5" maxSpeed="{self.max_speed_ms:.4f}" '
+            f'length="{self.length_m:.3f}" minGap="{min_gap_m:.3f}" maxSpeed="{self.max_speed_ms:.4f}" '
             f'mass="{self.mass_kg:.1f}" massFactor="{self.rotating_mass_factor:.4f}" '
             f'maxPower="{self.max_power_w / 1000:.4f}" maxTraction="{self.max_traction_n / 1000:.4f}" '
             f'resCoef_constant="{self.davis_a_n / 1000:.6f}" resCoef_linear="{self.davis_b_n_per_mps / 1000:.8f}" '
@@ -182,6 +184,36 @@ class RollingStock(StrictModel):
             f'decel="{self.service_brake_decel_mps2:.4f}" emergencyDecel="{self.sumo_emergency_decel_mps2:.4f}" '
             f'speedFactor="1" speedDev="0"/>'
         )
+
+
+    def vtype_variant(self, tag: str, true_params: TrainParams) -> "RollingStock":
+        """This train with a SUMO vType of its own that carries drawn ("true") parameters.
+
+        The copy is named ``<name>_<tag>`` (so each variant gets its own vType ids in a route file)
+        and its model — every field vcsumo's controllers, supervisors, braking curves and run-health
+        monitor read — stays this train's nominal one; only :meth:`vtype_xml` writes ``true_params``
+        (mass, resistance, traction, power, service and emergency deceleration): SUMO then runs the
+        train as it really is while everything on board plans with the nominal model and its box.
+        """
+        if not tag or not all(c.isalnum() or c == "_" for c in tag) or tag.lower() != tag:
+            raise ValueError(f"vType variant tag '{tag}' must be lower-case letters, digits and _")
+        true = self.model_copy(update={
+            "name": f"{self.name}_{tag}", "mass_kg": true_params.mass_kg, "davis_a_n": true_params.davis_a_n,
+            "davis_b_n_per_mps": true_params.davis_b_n_per_mps, "davis_c_n_per_mps2": true_params.davis_c_n_per_mps2,
+            "max_traction_n": true_params.max_traction_n, "max_power_w": true_params.max_power_w,
+            "service_brake_decel_mps2": true_params.service_brake_decel_mps2,
+            "emergency_brake_decel_mps2": max(true_params.emergency_brake_decel_mps2, true_params.service_brake_decel_mps2),
+        })
+        return _VTypeVariant(**{**self.__dict__, "name": true.name}, true_stock=true)
+
+
+class _VTypeVariant(RollingStock):
+    """A rolling stock whose SUMO vType is another's (:meth:`RollingStock.vtype_variant`)."""
+
+    true_stock: RollingStock = Field(description="The train as SUMO runs it (its vType)")
+
+    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail") -> str:
+        return self.true_stock.vtype_xml(tunnel_factor, vclass)
 
 
 def rolling_stock_dir() -> Path:

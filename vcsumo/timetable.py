@@ -120,6 +120,14 @@ class Convoy(StrictModel):
     couple_at: str | None = Field(default=None, description="Station id or junction where the convoy forms (default: as soon as possible)")
     decouple_at: str | None = Field(default=None, description="Station id or junction where it splits (default: where the routes part)")
 
+    @field_validator("services")
+    @classmethod
+    def _each_once(cls, v: list[str]) -> list[str]:
+        twice = next((s for i, s in enumerate(v) if s in v[:i]), None)
+        if twice is not None:
+            raise ValueError(f"service '{twice}' is named twice: a train cannot be its own predecessor in a convoy")
+        return v
+
 
 class TimetableFile(StrictModel):
     """A timetable file."""
@@ -203,6 +211,9 @@ def _endpoint_edges(topo: Topology, name: str, line: Line, path: Path, field_nam
         kind = "unknown branch in" if "branch:" in name else "no open end"
         raise InputError(path, field_name, f"{kind} '{name}' (open ends of {line.name}: {', '.join(topo.endpoints) or 'none'}; "
                          "an end where lines are joined is not open)")
+    if not line.all_station_ids():
+        raise InputError(line.path, "stations", f"the line has no stations, so '{name}' ({path.name}: {field_name}) is not on it "
+                         f"(a timetable runs between stations or open ends: {', '.join(topo.endpoints) or 'none'})")
     try:
         line.station(name)
     except KeyError:
@@ -300,6 +311,14 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         if svc.destination not in topo.endpoints:
             plat = next(p for p in topo.platforms_of(svc.destination) if p.edge == route[-1])
             final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.end_pos_m - plat.start_pos_m)
+        platforms = [(f"{f}.stops[{j}].station", s) for j, s in enumerate(planned_stops)] + ([(f"{f}.destination", final)] if final else [])
+        first = next((p for p in topo.platforms_of(svc.origin) if p.edge == route[0]), None) if svc.origin not in topo.endpoints else None
+        if first is not None:
+            platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.end_pos_m - first.start_pos_m)))
+        for where, stop in platforms:
+            if stop.platform_length_m + 1e-6 < stock.length_m:
+                raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of "
+                                 f"'{stop.station}' (stations of {line.path})")
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
         times = [dep0] + [x for s in planned_stops for x in (s.arrival_s, s.departure_s) if x is not None] + ([arr_sched] if arr_sched is not None else [])
@@ -355,23 +374,63 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         for s_i, sid in enumerate(cv.services):
             if sid not in seen:
                 raise InputError(path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{sid}', which does not exist")
+        check_convoy_times(trains, cv.services, path, f"convoys[{c_i}]", dt)
     return trains
 
 
-def routes_xml(trains: list[PlannedTrain], topo: Topology) -> str:
+def _running_time_s(t: PlannedTrain, dt: float) -> float:
+    """Unhindered running time of a train from its departure to its destination (with its dwells), s."""
+    end_s = t.final_stop.s_m if t.final_stop else float(t.profile.starts_m[-1] + (t.end_pos_m or 0.0))
+    run = unhindered_run(t.stock.params(), t.profile, dt=dt, s0=t.start_s_m, stops=[Stop(s.s_m, s.dwell_s) for s in t.stops], end_s=end_s)
+    return float(run["time_s"].iloc[-1])
+
+
+def check_convoy_times(trains: list[PlannedTrain], services: list[str], path: Path, field_name: str, dt: float) -> None:
+    """The k-th trains of a convoy's services run at the same time: a member that departs only after
+    another has arrived (as scheduled, else unhindered) never couples (an InputError naming the convoy)."""
+    by_service = {s: [t for t in trains if t.service == s] for s in services}
+    running: dict[str, float] = {}
+
+    def arrival(t: PlannedTrain) -> float:
+        if t.scheduled_arrival_s is not None:
+            return t.scheduled_arrival_s
+        if t.service not in running:  # repeats of a service share its route and stops
+            running[t.service] = _running_time_s(t, dt)
+        return t.depart_s + running[t.service]
+
+    for k in range(min(len(v) for v in by_service.values())):
+        members = [by_service[s][k] for s in services]
+        last = max(members, key=lambda t: t.depart_s)
+        first = min(members, key=arrival)
+        if last.depart_s >= arrival(first):
+            raise InputError(path, f"{field_name}.services", f"train {last.id} departs at {format_clock(last.depart_s)}, when {first.id} of the same "
+                             f"convoy is already at its destination ({format_clock(arrival(first))}): they never run together, so they never couple")
+
+
+END_OF_TRACK_WINDOW_M = 100.0
+"""A train whose route ends at an open end of track arrives when it stands within this distance (or its
+own length, if longer) of the end, m: braking-curve supervision stops it its position error short of
+the end (10 m under etcs_typical), so SUMO's stop there spans this window."""
+
+
+def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.0) -> str:
     """SUMO route file: vTypes (open-air and tunnel variants) and vehicles sorted by departure."""
     factors = sorted({e.tunnel_factor for e in topo.edges.values()})
     stocks = {t.stock.name: t.stock for t in trains}
     out = ["<routes>"]
     for st in stocks.values():
         for tf in factors:
-            out.append("  " + st.vtype_xml(tf))
+            out.append("  " + st.vtype_xml(tf, min_gap_m=min_gap_m))
     for t in sorted(trains, key=lambda x: x.depart_s):  # stable: equal times keep planning order (convoy leader first)
         first_tf = topo.edges[t.edges[0]].tunnel_factor
         speed = "0" if t.depart_speed_mps <= 0 else f"{t.depart_speed_mps:.4f}"
+        arrival_pos = t.end_pos_m or topo.edges[t.edges[-1]].length_m
+        end_stop = t.final_stop is None and t.end_pos_m is not None and t.stop_at_end
+        if end_stop:  # stopped short of the end of track (by its position error, under supervision), the train has arrived
+            arrival_pos = max(0.0, t.end_pos_m - max(t.stock.length_m, END_OF_TRACK_WINDOW_M))
         out.append(
             f'  <vehicle id={quoteattr(t.id)} type="{t.stock.vtype_id(first_tf)}" depart="{t.depart_s:.2f}" '
-            f'departPos="{t.depart_pos_m:.3f}" departSpeed="{speed}" arrivalPos="{(t.end_pos_m or topo.edges[t.edges[-1]].length_m):.3f}" line={quoteattr(t.service)}>'
+            f'departPos="{t.depart_pos_m:.3f}" departSpeed="{speed}" arrivalPos="{arrival_pos:.3f}" line={quoteattr(t.service)}>'
         )
         out.append(f'    <route edges="{" ".join(t.edges)}"/>')
         for s in t.stops:
@@ -384,8 +443,8 @@ def routes_xml(trains: list[PlannedTrain], topo: Topology) -> str:
         if t.final_stop is not None:
             extra = f' arrival="{t.scheduled_arrival_s:.1f}"' if t.scheduled_arrival_s is not None else ""
             out.append(f"    {_stop_element(topo, t.final_stop.platform, t.shares_platforms)} duration=\"1\"{extra}/>")
-        elif t.end_pos_m is not None and t.stop_at_end:
-            out.append(f'    <stop lane="{t.edges[-1]}_0" endPos="{t.end_pos_m:.3f}" duration="1"/>')
+        elif end_stop:
+            out.append(f'    <stop lane="{t.edges[-1]}_0" startPos="{arrival_pos:.3f}" endPos="{t.end_pos_m:.3f}" duration="1"/>')
         out.append("  </vehicle>")
     out.append("</routes>")
     return "\n".join(out) + "\n"

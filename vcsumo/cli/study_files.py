@@ -1,269 +1,219 @@
-"""Study definitions as files: ``studies/*.yaml`` re-run with ``vcsumo study run FILE``.
+"""Study files: ``studies/*.yaml`` run with ``vcsumo study run FILE``.
 
-A study file names its kind (``study: capacity | headway | batch | junction | safety``), the line and the
-options of the matching command, in the same units.  It is validated strictly (unknown keys are
-errors) before anything runs, then executed through exactly the same code path as the command
-(``vcsumo study capacity ...`` etc.), and the study file is recorded among the results' inputs.
+A study file names its kind (``study: capacity | headway | batch | junction | safety | tradeoff``), a title and
+notes, and the options of the matching command as fields of the command's own configuration model
+(:mod:`vcsumo.studies.configs`): the same names, units and bounds as the command line.  It is
+validated strictly (unknown keys are errors; every problem is listed), the names and files it refers
+to are checked, and then the same function the command calls runs it, recording the study file among
+the results' inputs.  Paths in a study file (line, trains, timetables, assumption sets, delay
+configurations, controller parameter files) are relative to the file; its ``out`` is relative to the
+current folder and may not leave it.
+
+``junction``, ``safety`` and ``tradeoff`` are not yet built from one configuration model: their file models are
+here and :func:`run_study` hands their values to the command (``click.Context.invoke``).  Converting
+one is: give its Config the ``CommandConfig`` base and option names, generate its command with
+:func:`vcsumo.cli.options.config_command`, and list it in :data:`KINDS` with its function.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, Callable, Literal
 
-from pydantic import Field, TypeAdapter, ValidationError, field_validator
+import click
+from pydantic import Field, field_validator
 
-from vcsumo.config import StrictModel, is_file, read_yaml, validation_error
+from vcsumo.config import CommandConfig, StrictModel, read_yaml
 from vcsumo.errors import InputError
+from vcsumo.studies.configs import BatchConfig, CapacityConfig, HeadwayConfig, Out, check_controller_spec, load_line_spec, load_train
 from vcsumo.studies.safety import SafetyCampaign
-
-BlockLength = Annotated[float, Field(ge=100, le=50000, description="Block length, m (100 m–50 km, as in line files)")]
-ConvoySize = Annotated[int, Field(ge=1, le=20, description="Trains in a convoy (1–20: longer convoys are not studied)")]
-Step = Annotated[float, Field(gt=0, le=2, description="Simulation step, s (at most 2 s)")]
-Workers = Annotated[int, Field(ge=1, le=512, description="Parallel processes (1–512)")]
+from vcsumo.studies.tradeoff import TradeoffConfig
 
 
-class _Out(StrictModel):
-    title: str = ""
-    notes: str = ""
-    out: str | None = Field(
-        default=None,
-        description="Results folder, relative to the current folder, without '..' (default: a new folder under results/); "
-        "a study file cannot send results elsewhere, the --out option can",
-    )
+class StudyFile(StrictModel):
+    """The fields every study file has besides its command's options."""
 
-    @field_validator("out")
+    title: str = Field(default="", description="What the study is about")
+    notes: str = Field(default="", description="Free text: assumptions, sources")
+
+    @field_validator("out", mode="before", check_fields=False)
     @classmethod
-    def _out_stays_here(cls, v: str | None) -> str | None:
-        if v is None:
-            return v
+    def _out_stays_here(cls, v: Any) -> Any:
+        if not isinstance(v, str):
+            return v  # not text: the field's type check reports it
         p = Path(v)
         if not v.strip() or p.is_absolute() or ".." in p.parts or v.startswith("~") or "\\" in v or "\x00" in v:
             raise ValueError(f"'{v}' must be a relative folder without '..' (a study file may not write outside the current folder; use --out for that)")
         return v
 
 
-class _Common(_Out):
-    line: str = Field(description="Shipped line name or path to a line.yaml (relative to the study file)")
-
-
-class CapacityStudy(_Common):
+class CapacityStudy(StudyFile, CapacityConfig):
     study: Literal["capacity"]
-    train: str | None = None
-    controllers: list[str] = Field(default_factory=lambda: ["cbc", "cbf-cbc"])
-    convoy_sizes: list[ConvoySize] = Field(default_factory=lambda: [1, 2, 3, 4], min_length=1)
-    directions: list[Literal["up", "down"]] = Field(default_factory=lambda: ["up", "down"])
-    patterns: list[Literal["non-stop", "all-stops"]] | None = None
-    block_length_m: BlockLength | None = None
-    step_length_s: Step = 0.5
-    vc_step_length_s: Step = 0.2
-    fixed_time_s: float | None = Field(default=None, ge=0, le=120, description="ETCS fixed times (route setting + MA transmission + reaction), s (default: the assumption set's)")
-    assumptions: str | None = Field(default=None, description="Assumption set of the separation model: shipped name or .yaml path (relative to the study file)")
-    workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (default: number of CPUs)")
-    seed: int = Field(default=42, ge=0, description="Random seed (not negative)")
 
 
-class HeadwayStudy(_Common):
+class HeadwayStudy(StudyFile, HeadwayConfig):
     study: Literal["headway"]
-    regime: Literal["fbs", "mb", "both"] = "both"
-    trains: list[str] = Field(default_factory=list)
-    points_km: list[Annotated[float, Field(ge=-100000, le=100000)]] | None = Field(default=None, description="Measuring points, km (the line's chainage)")
-    block_length_m: BlockLength | None = None
-    step_length_s: Step = 0.5
-    trains_per_run: int = Field(default=2, ge=2, le=20, description="Trains released per probe (2–20)")
-    assumptions: str | None = Field(default=None, description="Assumption set of the separation model: shipped name or .yaml path (relative to the study file)")
 
 
-class BatchStudy(_Common):
+class BatchStudy(StudyFile, BatchConfig):
     study: Literal["batch"]
-    timetables: str = Field(description="Glob of timetable files, relative to the repository or the study file")
-    regimes: list[Literal["fbs", "mb", "vc"]] = Field(default_factory=lambda: ["fbs", "mb"])
-    seeds: int = Field(default=3, ge=1, le=1000, description="Seeds per timetable and regime (1–1,000)")
-    controllers: list[str] = Field(default_factory=list)
-    delay_config: str | None = None
-    workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (1: in this process; default: number of CPUs)")
-    scheduler: str | None = None
 
 
-class JunctionStudy(_Common):
+BlockLength = Annotated[float, Field(ge=100, le=50000, description="Block length, m (100 m–50 km, as in line files)")]
+Step = Annotated[float, Field(gt=0, le=2, description="Simulation step, s (at most 2 s)")]
+
+
+class JunctionStudy(StudyFile, CommandConfig):
+    """``vcsumo study junction`` (its command is not yet generated from this model)."""
+
     study: Literal["junction"]
-    train: str | None = None
-    controllers: list[str] = Field(default_factory=lambda: ["cbc", "cbf-cbc"])
+    line: str = Field(min_length=1, description="Shipped line name or path to a line.yaml", json_schema_extra={"path": True})
+    train: str | None = Field(default=None, description="Train type (default: the line's default_train)", json_schema_extra={"path": True})
+    controllers: list[str] = Field(default_factory=lambda: ["cbc", "cbf-cbc"], json_schema_extra={"path": "spec"})
     junction: str | None = Field(default=None, description="Branch id(s), comma-separated, or 'all' (default: chosen from the line file)")
     first: Literal["main", "branch", "both"] = "both"
     junction_signal: Literal["sumo", "braking-curve", "both"] = "braking-curve"
-    directions: list[Literal["up", "down"]] = Field(default_factory=lambda: ["up", "down"])
-    offsets_s: list[Annotated[float, Field(ge=-3600, le=3600)]] | None = Field(default=None, description="Release offsets between the services, s (within ±1 h)")
+    directions: list[Literal["up", "down"]] = Field(default_factory=lambda: ["up", "down"], min_length=1)
+    offsets_s: list[Annotated[float, Field(ge=-3600, le=3600)]] | None = Field(default=None, min_length=1, description="Release offsets between the services, s (within ±1 h)")
     approach_m: float = Field(default=12000.0, gt=0, le=200000, description="Main-line release distance before the first junction, m (up to 200 km)")
     window_m: float = Field(default=5000.0, gt=0, le=50000, description="Measuring window around the junction, m (up to 50 km)")
     block_length_m: BlockLength | None = None
     step_length_s: Step = 0.5
     vc_step_length_s: Step = 0.2
-    seed: int = Field(default=42, ge=0, description="Random seed (not negative)")
+    seed: int = Field(default=42, ge=0, le=2**31 - 1, description="Random seed (not negative)")
+    out: Out = None
+
+    def inputs(self) -> None:
+        line = load_line_spec(self, "line")
+        if self.train:
+            load_train(self, "train", self.train)
+        for i, c in enumerate(self.controllers):
+            check_controller_spec(self, f"controllers[{i}]", c)
+        if self.junction:
+            from vcsumo.studies.junction import resolve_junctions
+
+            resolve_junctions(line, self.junction, self.source, "junction")
+
+    def command_values(self) -> dict[str, Any]:
+        """The values of ``vcsumo study junction``'s parameters."""
+        values = dict(line_spec=self.line, junctions=self.junction, train=self.train, controllers=",".join(self.controllers), first=self.first,
+                      variants=self.junction_signal, directions=",".join(self.directions), approach_m=self.approach_m, window_m=self.window_m,
+                      block_length_m=self.block_length_m, step_length=self.step_length_s, vc_step_length=self.vc_step_length_s, seed=self.seed,
+                      out=self.out_path)
+        if self.offsets_s:
+            values["offsets"] = ",".join(f"{o:g}" for o in self.offsets_s)
+        return values
 
 
-class SafetyStudy(_Out, SafetyCampaign):
+class SafetyStudy(StudyFile, SafetyCampaign, CommandConfig):
     """``vcsumo study safety``: the campaign's parameters (:class:`~vcsumo.studies.safety.SafetyCampaign`) and workers."""
 
     study: Literal["safety"]
-    workers: Workers | None = Field(default=None, description="Parallel processes, 1–512 (default: number of CPUs)")
+    lines: list[str] = Field(default_factory=lambda: ["firenze_bologna", "milano_bologna", "hcmc_line1"], min_length=1,
+                             description="Shipped line names or line.yaml paths the scenarios are drawn on", json_schema_extra={"path": True})
+    rolling_stock: list[str] = Field(default_factory=lambda: ["etr1000", "regional_emu160", "hcmc_l1"], min_length=1,
+                                     description="Rolling stock a heterogeneous convoy's trains are drawn from (names or paths)", json_schema_extra={"path": True})
+    assumptions: str | None = Field(default=None, description="Assumption set of the separation model (shipped name or path; default etcs_typical)",
+                                    json_schema_extra={"path": True})
+    cbf_config: str | None = Field(default=None, description="CBF parameter file (default controllers/cbf.yaml)", json_schema_extra={"path": True})
+    workers: int | None = Field(default=None, ge=1, le=512, description="Parallel processes, 1–512 (default: number of CPUs)")
+    out: Out = None
+
+    def inputs(self) -> None:
+        from vcsumo.line import load_line
+
+        for i, spec in enumerate(self.lines):
+            with self.blame(f"lines[{i}]"):
+                load_line(spec)
+        if self.cbf_config:
+            check_controller_spec(self, "cbf_config", f"cbf-cbc:{self.cbf_config}")
+
+    def command_values(self) -> dict[str, Any]:
+        """The values of ``vcsumo study safety``'s parameters."""
+        names = ["scenarios", "seed", "step_s", "control_period_s", "followers_max", "channel_period_s", "loss_max", "delay_max_s", "mean_extra_max_s",
+                 "outage_probability", "outage_max_s", "corner_probability", "position_error_max_m", "max_duration_s", "cbf_config", "workers", "loop", "heterogeneous_probability", "assumptions"]
+        return dict({n: getattr(self, n) for n in names}, lines=",".join(self.lines), controllers=",".join(self.controllers), kinds=",".join(self.kinds),
+                    rolling_stock=",".join(self.rolling_stock), scheduler=None, out=self.out_path)
 
 
-StudyFile = Annotated[Union[CapacityStudy, HeadwayStudy, BatchStudy, JunctionStudy, SafetyStudy], Field(discriminator="study")]
+class TradeoffStudy(StudyFile, TradeoffConfig, CommandConfig):
+    """``vcsumo study tradeoff``: the study's options (:class:`~vcsumo.studies.tradeoff.TradeoffConfig`)."""
+
+    study: Literal["tradeoff"]
+    line: str = Field(min_length=1, description="Shipped line name or path to a line.yaml", json_schema_extra={"path": True})
+    train: str | None = Field(default=None, description="Train type (default: the line's default_train)", json_schema_extra={"path": True})
+    assumptions: str | None = Field(default=None, description="Base assumption set: shipped name or .yaml path (default: etcs_typical)",
+                                    json_schema_extra={"path": True})
+    out: Out = None
+
+    def inputs(self) -> None:
+        load_line_spec(self, "line")
+        if self.train:
+            load_train(self, "train", self.train)
+        check_controller_spec(self, "controller", self.controller)
+
+    def command_values(self) -> dict[str, Any]:
+        """The values of ``vcsumo study tradeoff``'s parameters."""
+        def floats(v: list[float]) -> str:
+            return ",".join(f"{x:g}" for x in v)
+
+        return dict(line_spec=self.line, train=self.train, convoy_sizes=",".join(map(str, self.convoy_sizes)), delays=floats(self.delays_s),
+                    uncertainties=floats(self.uncertainties), position_errors=floats(self.position_errors_m), grid=self.grid,
+                    assumptions=self.assumptions, pattern=self.pattern, direction=self.direction, simulate_check=self.simulate_check,
+                    controller=self.controller, block_length_m=self.block_length_m, step_length=self.step_length_s,
+                    vc_step_length=self.vc_step_length_s, seed=self.seed, out=self.out_path)
 
 
-_KINDS = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy, "safety": SafetyStudy}
+KINDS: dict[str, type[CommandConfig]] = {"capacity": CapacityStudy, "headway": HeadwayStudy, "batch": BatchStudy, "junction": JunctionStudy,
+                                         "safety": SafetyStudy, "tradeoff": TradeoffStudy}
+"""Study kinds (``study:``) and their file models."""
 
 
-def load_study(path: str | Path) -> CapacityStudy | HeadwayStudy | BatchStudy | JunctionStudy | SafetyStudy:
-    """Read and validate a study file; errors name the file and the field.
-
-    Besides the fields' own checks, the names a study refers to are resolved before anything runs:
-    the line, the train type(s), the controllers (and their parameter files) and the delay
-    configuration must exist.
-    """
+def load_study(path: str | Path) -> CommandConfig:
+    """Read and validate a study file (every problem named with its field), then check the line,
+    trains, controllers and files it names: nothing runs before they all exist."""
     path = Path(path)
     data = read_yaml(path)
+    kinds = ", ".join(KINDS)
     if data is None:
-        raise InputError(path, None, "the file is empty (expected a mapping with study: capacity, headway, batch, junction or safety)")
+        raise InputError(path, None, f"the file is empty (expected a mapping with study: {kinds})")
     if not isinstance(data, dict):
-        raise InputError(path, None, f"expected a mapping with study: capacity, headway, batch, junction or safety, got a {type(data).__name__}")
+        raise InputError(path, None, f"expected a mapping with study: {kinds}, got a {type(data).__name__}")
     if "study" not in data:
-        raise InputError(path, "study", "required field is missing (capacity, headway, batch, junction or safety)")
-    kind = data.get("study")
-    try:
-        study = TypeAdapter(StudyFile).validate_python(data)
-    except ValidationError as exc:
-        model = _KINDS.get(kind) if isinstance(kind, str) else None
-        raise validation_error(exc, path, model, skip=tuple(_KINDS)) from None
-    check_references(study, path)
+        raise InputError(path, "study", f"required field is missing ({kinds})")
+    kind = data["study"]
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise InputError(path, "study", f"unknown study '{kind}' (choose {kinds})")
+    study = KINDS[kind].from_file(data, path)
+    study.inputs()  # type: ignore[attr-defined]
     return study
 
 
-def check_references(study, path: Path) -> None:
-    """The line, trains, controllers and delay configuration named by ``study`` exist (InputError if not)."""
-    from vcsumo.line import resolve_line_path
-    from vcsumo.network_file import network_path
+def shipped_or_path(spec: Path) -> Path:
+    """A study file path, or the name of a shipped study (``studies/<name>.yaml`` of the data folder)."""
+    from vcsumo.line import project_root
 
-    base = path.parent
-
-    def rewrap(field: str, fn, *args) -> None:
-        try:
-            fn(*args)
-        except InputError as exc:
-            if exc.path is None:  # an unknown name: the study file's field is to blame
-                raise InputError(path, field, exc.message) from None
-            raise
-
-    if isinstance(study, SafetyStudy):
-        for i, ln in enumerate(study.lines):
-            rewrap(f"lines[{i}]", resolve_line_path, _resolve(ln, base))
-        if study.cbf_config:
-            rewrap("cbf_config", _check_controller, f"cbf-cbc:{study.cbf_config}")
-    elif not (isinstance(study, BatchStudy) and network_path(_resolve(study.line, base)) is not None):  # batch takes a network too
-        rewrap("line", resolve_line_path, _resolve(study.line, base))
-    trains = [study.train] if getattr(study, "train", None) else list(getattr(study, "trains", []) or [])
-    for i, t in enumerate(trains):
-        rewrap("train" if hasattr(study, "train") else f"trains[{i}]", _check_train, t)
-    for i, c in enumerate(getattr(study, "controllers", []) or []):
-        rewrap(f"controllers[{i}]", _check_controller, c)
-    if getattr(study, "delay_config", None):
-        spec = _resolve(study.delay_config, base)
-        if not is_file(spec):
-            raise InputError(path, "delay_config", f"delay configuration '{study.delay_config}' not found (relative to the study file or the current folder)")
-
-
-def _check_train(spec: str) -> None:
-    from vcsumo.rolling_stock import load_rolling_stock
-
-    load_rolling_stock(spec)
-
-
-def _check_controller(spec: str) -> None:
-    """A VC controller name (``cbc``, ``cbf-cbc``, ...), optionally with a parameter set after a colon."""
-    from vcsumo.control.registry import check_controller
-
-    check_controller(spec, None)
-
-
-def _resolve(spec: str, base: Path) -> str:
-    """A relative path in a study file is relative to the file, unless it names a shipped item."""
-    p = Path(spec)
-    if p.suffix in (".yaml", ".yml") and not p.is_absolute() and is_file(base / p):
-        return str((base / p).resolve())
+    shipped = project_root() / "studies" / f"{spec}.yaml"
+    if not spec.exists() and spec.suffix not in (".yaml", ".yml") and shipped.is_file():
+        return shipped
     return spec
 
 
-def study_arguments(study, path: Path, out: Path | None) -> list[str]:
-    """The command line equivalent to a study file."""
-    base = path.parent
-    dest = out or (Path(study.out) if study.out else None)
-    if isinstance(study, SafetyStudy):
-        args = ["study", "safety", "--scenarios", str(study.scenarios), "--lines", ",".join(_resolve(x, base) for x in study.lines),
-                "--controllers", ",".join(study.controllers), "--seed", str(study.seed), "--step-s", str(study.step_s),
-                "--control-period-s", str(study.control_period_s), "--followers-max", str(study.followers_max), "--kinds", ",".join(study.kinds),
-                "--channel-period-s", str(study.channel_period_s), "--loss-max", str(study.loss_max), "--delay-max-s", str(study.delay_max_s),
-                "--mean-extra-max-s", str(study.mean_extra_max_s), "--outage-probability", str(study.outage_probability),
-                "--outage-max-s", str(study.outage_max_s), "--corner-probability", str(study.corner_probability),
-                "--position-error-max-m", str(study.position_error_max_m), "--max-duration-s", str(study.max_duration_s)]
-        if study.cbf_config:
-            args += ["--cbf", _resolve(study.cbf_config, base)]
-        if study.workers:
-            args += ["--workers", str(study.workers)]
-        return args + (["--out", str(dest)] if dest is not None else [])
-    args = ["--line", _resolve(study.line, base)]
-    if isinstance(study, CapacityStudy):
-        args = ["study", "capacity"] + args
-        if study.train:
-            args += ["--train", study.train]
-        args += ["--controllers", ",".join(study.controllers), "--convoy-sizes", ",".join(map(str, study.convoy_sizes)),
-                 "--directions", ",".join(study.directions), "--step-length", str(study.step_length_s),
-                 "--vc-step-length", str(study.vc_step_length_s), "--seed", str(study.seed)]
-        if study.patterns:
-            args += ["--patterns", ",".join(study.patterns)]
-        if study.block_length_m:
-            args += ["--block-length-m", str(study.block_length_m)]
-        if study.fixed_time_s is not None:
-            args += ["--fixed-time-s", str(study.fixed_time_s)]
-        if study.assumptions:
-            args += ["--assumptions", _resolve(study.assumptions, base)]
-        if study.workers:
-            args += ["--workers", str(study.workers)]
-    elif isinstance(study, HeadwayStudy):
-        args = ["study", "headway"] + args + ["--regime", study.regime, "--step-length", str(study.step_length_s),
-                                              "--trains-per-run", str(study.trains_per_run)]
-        for t in study.trains:
-            args += ["--train", t]
-        if study.points_km:
-            args += ["--points", ",".join(map(str, study.points_km))]
-        if study.assumptions:
-            args += ["--assumptions", _resolve(study.assumptions, base)]
-        if study.block_length_m:
-            args += ["--block-length-m", str(study.block_length_m)]
-    elif isinstance(study, BatchStudy):
-        args = ["batch"] + args + ["--timetables", study.timetables, "--regimes", ",".join(study.regimes), "--seeds", str(study.seeds)]
-        if study.controllers:
-            args += ["--controllers", ",".join(study.controllers)]
-        if study.delay_config:
-            args += ["--delay-config", _resolve(study.delay_config, base)]
-        if study.workers is not None:
-            args += ["--workers", str(study.workers)]
-        if study.scheduler:
-            args += ["--scheduler", study.scheduler]
-    else:
-        args = ["study", "junction"] + args + ["--controllers", ",".join(study.controllers), "--first", study.first,
-                                               "--junction-signal", study.junction_signal, "--directions", ",".join(study.directions),
-                                               "--approach-m", str(study.approach_m), "--window-m", str(study.window_m),
-                                               "--step-length", str(study.step_length_s), "--vc-step-length", str(study.vc_step_length_s),
-                                               "--seed", str(study.seed)]
-        if study.train:
-            args += ["--train", study.train]
-        if study.junction:
-            args += ["--junction", study.junction]
-        if study.offsets_s:
-            args += ["--offsets", ",".join(f"{o:g}" for o in study.offsets_s)]
-        if study.block_length_m:
-            args += ["--block-length-m", str(study.block_length_m)]
-    if dest is not None:
-        args += ["--out", str(dest)]
-    return args
+def run_study(study: CommandConfig, out: Path | None = None) -> None:
+    """Run a loaded study file with the function its command calls (``out`` overrides the file's)."""
+    from vcsumo.cli import batch, commands
+    from vcsumo.results import recording
+
+    if out is not None:
+        study = study.model_copy(update={"out": str(out)})
+    functions: dict[type, Callable[[Any], None]] = {CapacityStudy: commands.capacity, HeadwayStudy: commands.headway, BatchStudy: batch.batch}
+    if type(study) in functions:
+        functions[type(study)](study)
+        return
+    from vcsumo.cli.junction import junction_cmd
+    from vcsumo.cli.safety import safety_cmd
+    from vcsumo.cli.tradeoff import tradeoff_cmd
+
+    command = junction_cmd if isinstance(study, JunctionStudy) else tradeoff_cmd if isinstance(study, TradeoffStudy) else safety_cmd
+    with recording(study.recorded_inputs()):
+        click.get_current_context().invoke(command, **study.command_values())  # type: ignore[attr-defined]

@@ -41,6 +41,7 @@ class Degradation(Window):
     delay_s: float = Field(default=0.0, ge=0, le=3600, description="Extra constant delay in the window, s (0–3,600)")
     mean_extra_s: float = Field(default=0.0, ge=0, le=3600, description="Mean of an extra exponential delay in the window, s (0–3,600)")
     loss_probability: float = Field(default=0.0, ge=0, le=1, description="Loss probability per message in the window, 0–1")
+    exponential_mean_s: float | None = Field(default=None, ge=0, le=3600, description="Mean of the exponential delay in the window in place of the channel's mean_extra_s (an exponential channel whose rate changes, e.g. 15 → 3 /s), s (0–3,600)")
 
 
 class ChannelConfig(StrictModel):
@@ -93,7 +94,8 @@ class Channel:
         elif c.model == "constant":
             base = c.delay_s
         elif c.model == "exponential":
-            base = c.delay_s + (self.rng.exponential(c.mean_extra_s) if c.mean_extra_s > 0 else 0.0)
+            mean = deg.exponential_mean_s if deg is not None and deg.exponential_mean_s is not None else c.mean_extra_s
+            base = c.delay_s + (self.rng.exponential(mean) if mean > 0 else 0.0)
         else:
             base = float(self.rng.choice(c.samples_s))
         if deg:

@@ -24,7 +24,9 @@ brake (bottom of its box, descents) after the dead time (reaction + half the bra
 largest that keeps margin + the position errors of both trains (+ the stack's d_min beyond that)
 between them at every moment (also when the follower brakes harder than the predecessor can).
 Approaching its own stop (``Observation.next_stop_m``) the follower keeps to its guaranteed
-service-brake curve to the stop point.
+service-brake curve to the stop point, and everywhere to the line's permitted speed: the limit under
+the whole train and the guaranteed service-brake curve to every lower limit ahead (the same curves
+the supervision gives the trains SUMO drives).
 
 By default the guard trusts only what the channel delivered (:class:`GuardConfig` ``sensor``: an
 on-board sensor of the train ahead — SUMO's exact gap and speed within its look-ahead, no error
@@ -41,12 +43,11 @@ from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Observation
-from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance
+from vcsumo.dynamics import acceleration, brake_force_limit, gradient_force, running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.assumptions import load_assumptions
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, leader_worst_state
-from vcsumo.units import G
 
 
 class GuardConfig(StrictModel):
@@ -61,40 +62,6 @@ def load_guard(spec: str | Path | None = None, field: str | None = "--guard", ba
     from vcsumo.control.params import resolve_params
 
     return load_model(GuardConfig, resolve_params(spec, "guard", field, base_dir, kind="guard"))
-
-
-# -------------------------------------------------------------------------------------------
-# The maths (one place)
-
-
-def guard_speed(s_f_m: float, b_f_mps2: float, dt_s: float, s_l_m: float, v_l_mps: float, leader_length_m: float, a_l_mps2: float, d_min_m: float) -> float:
-    """Highest follower speed for the next step that keeps the relative braking distance, m/s.
-
-    Worst case for the predecessor: braking at ``a_l`` from the state (s_l, v_l) it was last known
-    in — sensed now or communicated earlier; the stopping point s_l + v_l²/(2·a_l) is the same
-    whenever after that moment the braking started, so old information is still a valid bound.
-    The follower runs one step (Δt) at the commanded speed v and then brakes at ``b_f`` with
-    SUMO's semi-implicit Euler update, which covers v²/(2·b_f) + ½·v·Δt:
-    1.5·v·Δt + v²/(2·b_f) ≤ s_l + v_l²/(2·a_l) − L_l − d_min − s_f.
-    """
-    stop_l = s_l_m + v_l_mps * v_l_mps / (2.0 * a_l_mps2)
-    room = stop_l - leader_length_m - d_min_m - s_f_m
-    if room <= 0.0:
-        return 0.0
-    k = 1.5 * dt_s
-    return b_f_mps2 * (-k + math.sqrt(k * k + 2.0 * room / b_f_mps2))
-
-
-def guaranteed_decel(p: TrainParams, v_mps: float, decel_mps2: float, grad_low: float) -> float:
-    """Deceleration a train certainly reaches braking with force M·decel (eq. 1b): resistance at
-    least A, gradient at worst the steepest downhill ahead, m/s²."""
-    return (p.mass_kg * decel_mps2 + p.davis_a_n + p.mass_kg * G * min(grad_low, 0.0)) / (p.mass_kg * p.rotating_mass_factor)
-
-
-def strongest_decel(p: TrainParams, v_mps: float, decel_mps2: float, grad_high: float, tunnel_factor: float = 1.0) -> float:
-    """Hardest deceleration a train may show braking with force M·decel at speed v (eq. 1b):
-    its resistance at v and the steepest uphill ahead help it, m/s²."""
-    return (p.mass_kg * decel_mps2 + float(running_resistance(p, v_mps, tunnel_factor)) + p.mass_kg * G * max(grad_high, 0.0)) / p.mass_kg
 
 
 @dataclass(frozen=True)
@@ -148,6 +115,7 @@ class SeparationGuard:
         self.last_speed_mps = math.nan
         self.last_force_in_n = math.nan
         self._rules: dict[int, tuple] = {}
+        self._targets: dict[int, list] = {}
 
     def _rule(self, profile: RouteProfile) -> tuple[RelativeBraking, RouteBraking]:
         r = self._rules.get(id(profile))
@@ -172,7 +140,25 @@ class SeparationGuard:
             v_guard = rule.max_speed(s, gap, s_l, v_l, dead, v_max)
         if obs.next_stop_m is not None:  # its own stop: the guaranteed service-brake curve to it
             v_guard = min(v_guard, service.permitted_speed(s, obs.next_stop_m, 0.0, 1.5 * dt, obs.ego.speed_mps))
-        return v_guard
+        return min(v_guard, self.limit_speed(obs, service))
+
+    def limit_speed(self, obs: Observation, service: RouteBraking) -> float:
+        """The permitted speed of the line: the limit under the whole train now, and the guaranteed
+        service-brake curve to every lower limit ahead (as the supervision of SUMO-driven trains), m/s."""
+        prof, s, v, dt = obs.profile, obs.ego.position_m, obs.ego.speed_mps, obs.step_s
+        v_perm = min(prof.speed_limit_train(s, self.follower.length_m), self.follower.max_speed_ms)
+        targets = self._targets.get(id(prof))
+        if targets is None:
+            targets = self._targets = {id(prof): prof.restriction_targets()}
+            targets = self._targets[id(prof)]
+        reach = service.stopping_distance(s, v, 2.0 * dt) + 50.0
+        for s_t, v_t in targets:
+            if s_t <= s:
+                continue
+            if s_t - s > reach:
+                break
+            v_perm = min(v_perm, service.permitted_speed(s, s_t, v_t, 1.5 * dt, v))
+        return v_perm
 
     def limit(self, obs: Observation, cmd: Command) -> Command:
         p, prof = obs.params, obs.profile
@@ -196,5 +182,4 @@ class SeparationGuard:
         return replace(cmd, force_n=force, emergency=emergency, info={**cmd.info, "guard_speed_mps": v_guard})
 
 
-__all__ = ["GuardConfig", "load_guard", "guard_speed", "guaranteed_decel", "strongest_decel", "PredecessorEstimate", "predecessor_estimate",
-           "SeparationGuard"]
+__all__ = ["GuardConfig", "load_guard", "PredecessorEstimate", "predecessor_estimate", "SeparationGuard"]

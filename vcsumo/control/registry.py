@@ -307,26 +307,29 @@ def _build_mpc(ctx: StackContext, params) -> Nominal:
 
 def _build_cruise(ctx: StackContext, params) -> Nominal:
     """Terlizzi et al.'s switched cruise controller (Algorithm 4–5); it reads the CBF's parameters too."""
-    from vcsumo.control.cbf import CBFConfig, load_cbf_config
+    from vcsumo.control.cbf import CBFConfig, load_cbf_config, model_safety_distance_m
     from vcsumo.control.cruise import CruiseConfig, SwitchedCruiseController, load_cruise_config
 
     cfg = params if isinstance(params, CruiseConfig) else load_cruise_config(params)
     cbf = _params(ctx.supervisor_params, "cbf", ctx)
     cbf_cfg = cbf if isinstance(cbf, CBFConfig) else load_cbf_config(cbf)
     ctrl = SwitchedCruiseController(ctx.predecessor, ctx.ego, cfg, cbf_cfg, leader_id=ctx.predecessor_id)
-    d = cbf_cfg.safety_distance_m
+    d = cbf_cfg.safety_distance_m if cbf_cfg.distance == "fixed" else model_safety_distance_m(SeparationModel(ctx.assumptions or load_assumptions()), cbf_cfg)
     return Nominal(ctrl, d, lambda v: d)
 
 
 def _build_cbf(ctx: StackContext, params) -> tuple[Any, float]:
-    """Terlizzi et al.'s CBF supervisor (Algorithm 1–3, eq. 15, 18); it allows for the odometry error bound of the context."""
+    """Terlizzi et al.'s CBF supervisor (Algorithm 1–3, eq. 15, 18) under the context's assumption set
+    (``distance: model``: the barrier on the separation model); it allows for the odometry error bound
+    of the context.  The minimum safe gap it protects is its d."""
     from vcsumo.control.cbf import CBFConfig, CBFSupervisor, load_cbf_config
 
     cfg = params if isinstance(params, CBFConfig) else load_cbf_config(params)
     if ctx.position_error_m > cfg.position_error_m:  # the supervisor knows the bound of the odometry error (Felez eq. 9)
         cfg = cfg.model_copy(update={"position_error_m": ctx.position_error_m})
-    sup = CBFSupervisor(ctx.predecessor, ctx.ego, cfg, leader_id=ctx.predecessor_id, record=ctx.record)
-    return sup, cfg.safety_distance_m
+    sup = CBFSupervisor(ctx.predecessor, ctx.ego, cfg, leader_id=ctx.predecessor_id, record=ctx.record,
+                        model=SeparationModel(ctx.assumptions or load_assumptions()))
+    return sup, sup.safety_distance_m
 
 
 register_controller(ControllerEntry("mpc", _build_mpc, "mpc", uses_plans=True, doc="Follower NMPC of Felez et al. (2019), eq. 12 with the SH predictor"))

@@ -40,6 +40,7 @@ from typing import Iterable
 import pandas as pd
 
 from vcsumo.errors import InputError, VcsumoError
+from vcsumo.results import write_csv
 
 LOCK_NAME = ".vcsumo.lock"
 OWNER_NAME = ".vcsumo.lock.owner"
@@ -96,10 +97,8 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 def atomic_csv(df: pd.DataFrame, path: Path) -> None:
-    """``df.to_csv`` written whole or not at all."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    df.to_csv(tmp, index=False)
-    os.replace(tmp, path)
+    """A results table written whole or not at all (counts as integers, no float noise: :func:`vcsumo.results.write_csv`)."""
+    write_csv(df, path)
 
 
 def _repair(path: Path, columns: tuple[str, ...]) -> None:

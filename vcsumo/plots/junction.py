@@ -120,7 +120,8 @@ def plot_junction_regimes(traj_csv: Path, out_dir: Path, before_km: float = 12.0
 
 def plot_junction_sweep(sweep_csv: Path, path: Path) -> Path | None:
     """Follower's lost time vs arrival offset (solid: at the end of its route; dashed: at the merge check
-    point), one panel per scenario."""
+    point; dotted: at the merge junction), one panel per scenario; offsets whose run was not healthy
+    are marked with a red cross."""
     sweep_csv = Path(sweep_csv)
     if not sweep_csv.is_file() or sweep_csv.stat().st_size < 10:
         return None
@@ -145,6 +146,14 @@ def plot_junction_sweep(sweep_csv: Path, path: Path) -> Path | None:
             if "follower_lost_PM_s" in g and g.follower_lost_PM_s.notna().any():
                 pm = g.follower_lost_PM_s.replace([np.inf, -np.inf], np.nan)
                 ax.plot(g.offset_s, pm, "--", lw=1.0, color=color, label=_variant_label(g.iloc[0]) + " (after the merge)")
+            if "follower_lost_M_s" in g and g.follower_lost_M_s.notna().any():
+                at_j = g.follower_lost_M_s.replace([np.inf, -np.inf], np.nan)
+                ax.plot(g.offset_s, at_j, ":", lw=1.0, color=color, label=_variant_label(g.iloc[0]) + " (at the junction)")
+            if "healthy" in g:
+                bad = g[g.healthy.astype(str) == "False"]
+                if len(bad):
+                    ax.plot(bad.offset_s, bad.follower_lost_END_s.replace([np.inf, -np.inf], np.nan).fillna(0.0), "x", color="red", ms=8, mew=2,
+                            label=_variant_label(g.iloc[0]) + " not healthy")
         ax.axhline(0.0, color="k", lw=0.6)
         merges = "follower_lost_PM_s" in sc and sc.follower_lost_PM_s.replace([np.inf, -np.inf], np.nan).notna().any()
         ax.set_xlabel("arrival offset at the merge, alone [s]" if merges else "release interval at the common release point [s]")

@@ -1,451 +1,274 @@
-"""Offline reproduction of Terlizzi, Liuzza & Glielmo (2024), §VII: scenarios OS1 and OS2.
+"""Reproduction of Terlizzi, Liuzza & Glielmo (2024), §VII (OS1, OS2): runs of the shipped experiment files.
 
-Two trains (``terlizzi2024_leader`` / ``terlizzi2024_follower``, Table III with the power fix of
-the rolling-stock files) run on the Firenze–Bologna gradient profile ("up" track, positions from
-the Bologna end), each integrated by :class:`vcsumo.plant.TrainPlant` with parameters drawn inside
-its eq. 7 box (the true plant differs from the nominal model; seeded).  The leader sends a packet
-every 1 s over :class:`vcsumo.control.channel.Channel` (constant or exponential delay, loss
-p_loss = 0.01 of Table II, degradations, outages) with its state and its robust planned trajectory
-(its RLP, eq. 12, under the force plan of its own speed-tracking MPC on the nominal model).  The
-follower runs the paper's architecture: Algorithm 1–3 in :class:`~vcsumo.control.cbf.CBFSupervisor`
-around Algorithm 4–5 in :class:`~vcsumo.control.cruise.SwitchedCruiseController`.
+The set-ups are files in ``vcsumo/data/studies/experiments/`` (read them for every number and its
+source), run by :mod:`vcsumo.studies.experiment` on the offline loop:
 
-The line speed is taken constant (V^line = V^max = 83 m/s) as in the paper (§VII); gradients are
-those of the line file.
+* ``terlizzi2024_os1_3s.yaml`` / ``terlizzi2024_os1_08s.yaml`` — OS1 with the paper's equations
+  (eq. 15 with L^L + d, Table II–III), channel delay 3 s / 0.8 s;
+* ``terlizzi2024_os2.yaml`` — OS2 with the authors' channel (rate 15 → 3 /s at 500 s, 6 s loss at
+  1,200 s), delay estimator on (its run) and off (variant ``estimator_off``);
+* ``terlizzi2024_os1_authors.yaml`` — OS1 as the authors' public code runs it (490 t / 540 t,
+  0.12 s, N = 17 / 65, 0.4 s + Exp(15/s) every 0.84 s) with their barrier conventions
+  (``convention: authors``: d front to front, the halved stopping term, fixed brake forces).
 
-* **OS1** — L3 start 6,000 m apart (front-to-rear) at the same speed; the leader changes speed
-  twice, the follower closes the gap and couples; then the leader brakes to a stop.  Run for two
-  constant channel delays (3 s and 0.8 s).
-* **OS2** — the trains start coupled at 50 m/s; the channel degrades from 500 s (growing delay and
-  loss), is lost at 1,200 s and restored after an outage; run with and without the delay estimator.
-
-With the rolling stock's power-limited brake (P_br ≈ 9.8 MW) and the robust box, the spacing the
-barrier requires grows fast with speed (≈ 2 km at 35 m/s, 3–5 km at 50 m/s, > 10 km at 80 m/s on
-the line's 1.15 % falls), so the paper's OS1 speeds (~80 m/s catch-up, 60 and 40 m/s) and timeline
-(2,250 s, more than the 91.5 km of the line) are replaced by 55/45/35 m/s with changes at 500 and
-900 s and the stop at 1,300 s.  All are parameters of :class:`OS1Spec` / :class:`OS2Spec`.
-
-Run ``python -m vcsumo.reproduce.terlizzi2024 --out DIR`` to write ``summary.csv`` and one
-trajectory CSV per run.
+:func:`run_os1`, :func:`run_os2` and :func:`run_authors` return the summary row of a run (the
+coupled distances at the paper's speeds in both conventions, activations, barrier extremes,
+packets, CPU times) and its trajectory as one row per recorded step (``leader_*``, ``follower_*``,
+``gap_m`` front to rear, ``interdistance_m`` front to front, mode, barrier, τ̄, references).
+:class:`OS1Spec` / :class:`OS2Spec` change a file's set-up (None: the file's value), e.g. the
+shorter timelines of the tests.  ``python -m vcsumo.reproduce.terlizzi2024 --out DIR`` writes
+``summary.csv`` and one trajectory CSV per run.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from vcsumo.config import load_model
-from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
-from vcsumo.control.cbf import CBFConfig, CBFSupervisor
-from vcsumo.control.channel import Channel, ChannelConfig, Degradation, Window
-from vcsumo.control.cruise import CondensedMPC, CruiseConfig, PositionReferenceGenerator, SwitchedCruiseController, Weights
-from vcsumo.control.params import resolve_params
-from vcsumo.control.proxies import GradeWindow, RobustProxies, robust_plan, sample_params
-from vcsumo.control.registry import StackContext, build_follower_stack
+from vcsumo.config import read_yaml
 from vcsumo.line import load_line
-from vcsumo.plant import PlantState
-from vcsumo.sim.offline import OfflineStep, OfflineTrain, run_convoy
-from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.route_profile import RouteProfile
+from vcsumo.studies.experiment import RunResult, run_experiment
+from vcsumo.studies.experiment_model import resolve_experiment, runs_of
 from vcsumo.topology import build_topology
 
-LEADER = "leader"
-FOLLOWER = "follower"
-
-
-# -------------------------------------------------------------------------------------------
-# Scenario specifications
+FILES = {"os1_3s": "terlizzi2024_os1_3s", "os1_0.8s": "terlizzi2024_os1_08s", "os2": "terlizzi2024_os2", "authors": "terlizzi2024_os1_authors"}
+PAPER = {"coupled_interdistance_50_m": 1300.0, "os2_interdistance_m": 1260.0}
+"""§VII-B: "stabilizes the follower at a distance of approximately 1300m" (OS1, 50 m/s, Fig. 5b);
+OS2 starts "maintaining a separation of approximately 1260m" (Fig. 6b) — leader to follower."""
+AUTHORS_CODE = {"coupled_interdistance_50_m": 1254.0, "coupled_interdistance_60_m": 1333.0, "coupled_interdistance_40_m": 1261.0, "both_stopped_interdistance_m": 1006.7}
+"""The authors' own OS1 output shipped in their repository (Data_simulation/txt/interDistance.txt,
+commit 5946346): mean front-to-front distance over 600–800 s, 1,400–1,600 s, 2,100–2,250 s and at rest."""
 
 
 @dataclass(frozen=True)
 class OS1Spec:
-    """OS1: L3 → VC transition, leader speed changes, then a leader stop."""
+    """Changes of an OS1 file (None: the file's value)."""
 
-    duration_s: float = 1560.0
-    dt_s: float = 0.1
-    leader_start_m: float = 9500.0
-    initial_gap_m: float = 6000.0
-    """Front-to-rear gap at t = 0 (the paper's 6,000 m separation), m."""
-    speed_schedule: tuple[tuple[float, float], ...] = ((0.0, 55.0), (500.0, 45.0), (900.0, 35.0))
+    duration_s: float | None = None
+    dt_s: float | None = None
+    leader_start_m: float | None = None
+    initial_gap_m: float | None = None
+    """Front-to-rear gap at t = 0, m (the files: 6,000 m front to front)."""
+    speed_schedule: tuple[tuple[float, float], ...] | None = None
     """(from time s, leader target speed m/s)."""
-    brake_time_s: float = 1300.0
-    """The leader brakes to a stop from here, s."""
-    steady_window_s: float = 150.0
-    """The coupled distance is the mean gap over [brake_time − window, brake_time), s."""
+    brake_time_s: float | None = None
+    """The leader's target is 0 from here, s."""
+    steady_window_s: float | None = None
+    """The coupled distance is the mean gap over [brake_time − window, brake_time) (None: the file's windows at 50/60/40 m/s)."""
 
 
 @dataclass(frozen=True)
 class OS2Spec:
-    """OS2: coupled at constant speed, channel degradation, loss, restoration."""
+    """Changes of the OS2 file (None: the file's value)."""
 
-    duration_s: float = 1650.0
-    dt_s: float = 0.1
-    leader_start_m: float = 6500.0
-    speed_mps: float = 50.0
-    base_delay_s: float = 0.4
-    base_mean_extra_s: float = 0.2
-    degradations: tuple[tuple[float, float, float, float, float], ...] = (
-        (500.0, 800.0, 1.0, 0.5, 0.02),
-        (800.0, 1000.0, 2.0, 1.0, 0.05),
-        (1000.0, 1200.0, 3.5, 1.5, 0.10),
-    )
+    duration_s: float | None = None
+    dt_s: float | None = None
+    leader_start_m: float | None = None
+    speed_mps: float | None = None
+    base_delay_s: float | None = None
+    base_mean_extra_s: float | None = None
+    degradations: tuple[tuple[float, float, float, float, float], ...] | None = None
     """(start s, end s, extra delay s, mean extra exponential delay s, loss probability)."""
-    outage: tuple[float, float] = (1200.0, 1260.0)
-    fixed_delay_s: float = 0.6
-    """τ̄ without the estimator (and its initial value with it): the healthy channel's mean delay, s."""
-    steady_window: tuple[float, float] = (300.0, 500.0)
-    degraded_window: tuple[float, float] = (1000.0, 1200.0)
-
-
-# -------------------------------------------------------------------------------------------
-# Set-up helpers
-
-
-def load_configs(cbf_path: str | Path | None = None, cruise_path: str | Path | None = None) -> tuple[CBFConfig, CruiseConfig]:
-    cbf = load_model(CBFConfig, resolve_params(cbf_path, "cbf", "cbf_path"))
-    cruise = load_model(CruiseConfig, resolve_params(cruise_path, "cruise_terlizzi2024", "cruise_path"))
-    return cbf, cruise
+    outage: tuple[float, float] | None = None
+    fixed_delay_s: float | None = None
+    steady_window: tuple[float, float] | None = None
+    degraded_window: tuple[float, float] | None = None
 
 
 def line_profile(direction: str = "up") -> RouteProfile:
     """The Firenze–Bologna main track as a route profile (positions from the Bologna end for "up")."""
     topo = build_topology(load_line("firenze_bologna"))
-    edges = topo.track_for("main", direction).edges
-    return RouteProfile.from_edges(topo, edges)
+    return RouteProfile.from_edges(topo, topo.track_for("main", direction).edges)
 
 
-class SpeedSchedule:
-    """Piecewise-constant leader target speed with an optional stop from a given time."""
-
-    def __init__(self, steps: tuple[tuple[float, float], ...], stop_time_s: float | None = None):
-        self.t = np.array([a for a, _ in steps], dtype=float)
-        self.v = np.array([b for _, b in steps], dtype=float)
-        self.stop_time_s = stop_time_s
-
-    def __call__(self, t: float) -> float:
-        return float(self.at(np.array([t]))[0])
-
-    def at(self, t: np.ndarray) -> np.ndarray:
-        i = np.maximum(np.searchsorted(self.t, t, side="right") - 1, 0)
-        v = self.v[i]
-        if self.stop_time_s is not None:
-            v = np.where(t >= self.stop_time_s, 0.0, v)
-        return v
+def _file(key: str) -> tuple[Path, dict]:
+    path = resolve_experiment(FILES[key])
+    return path, read_yaml(path)
 
 
-class LeaderController:
-    """The leader's own controller: a speed-tracking MPC on its nominal model (§VI-D: "any valid
-    MPC embedded on the leader over its nominal model") solved once per packet period, plus the
-    robust planned trajectory x̲^L(t_κ) = RLP under that force plan (eq. 12) sent with the packet."""
-
-    def __init__(self, stock, cruise: CruiseConfig, profile: RouteProfile, schedule: SpeedSchedule, dt_s: float, leader_speed_weight: float = 10.0, leader_force_weight: float = 1e-4):
-        self.nominal = stock.params()
-        self.mpc = CondensedMPC(self.nominal, cruise.horizon_s, cruise.mpc_step_s, cruise.blocks)
-        self.route = GradeWindow(profile)
-        self.proxies = RobustProxies.from_stock(stock, profile)
-        self.schedule = schedule
-        self.weights = Weights(0.0, leader_speed_weight, leader_force_weight)
-        self.dt = dt_s
-        self.sol = None
-        self.length_m = stock.length_m
-
-    def plan(self, t: float, s: float, v: float) -> None:
-        tk = t + self.mpc.dt * np.arange(1, self.mpc.N + 1)
-        v_ref = self.schedule.at(tk)
-        self.sol = self.mpc.solve(t, s, v, np.zeros(self.mpc.N), v_ref, self.weights, self.route, self.nominal.max_speed_ms, False)
-
-    def force(self, t: float, v: float) -> float:
-        if self.schedule(t) <= 0.0 and v < 0.5:
-            return -self.nominal.mass_kg * self.nominal.service_brake_decel_mps2  # holding brake at a stop
-        sol = self.sol
-        k = min(int((t - sol.times_s[0]) / self.mpc.dt + 1e-9), len(sol.forces_n) - 1)
-        return float(sol.forces_n[max(k, 0)])
-
-    def broadcast_plan(self, t: float, s: float, v: float) -> tuple:
-        """At every packet: plan with the MPC, and the robust planned trajectory sent with the packet
-        (times, positions, speeds, forces) — the offline loop's ``plan`` hook."""
-        self.plan(t, s, v)
-        sol = self.sol
-        n = int(round((sol.times_s[-1] - t) / self.dt))
-        tt = t + self.dt * np.arange(n)
-        idx = np.minimum(((tt - sol.times_s[0]) / self.mpc.dt + 1e-9).astype(int), len(sol.forces_n) - 1)
-        forces = sol.forces_n[idx]
-        pt, ps, pv = robust_plan(self.proxies, s, v, forces, self.dt, t, every=max(1, int(round(0.5 / self.dt))))
-        return pt, ps, pv, np.interp(pt, sol.times_s[:-1], sol.forces_n)
-
-    def message(self, t: float, s: float, v: float, a: float, f: float) -> Message:
-        """The packet at time t: state and robust planned trajectory (plans first)."""
-        pt, ps, pv, pf = self.broadcast_plan(t, s, v)
-        return Message(sender=LEADER, sent_time_s=t, state=TrainStateMsg(time_s=t, position_m=s, speed_mps=v, accel_mps2=a, force_n=f),
-                       length_m=self.length_m, plan_times_s=pt, plan_positions_m=ps, plan_speeds_mps=pv, plan_forces_n=pf)
-
-    def make_step(self, obs: Observation) -> Command:
-        """The leader's force (the Controller interface; the plan is made at each packet)."""
-        return Command(self.force(obs.time_s, obs.ego.speed_mps), mode="leader")
+def _run(path: Path, data: dict, label: str, seed: int, profile: RouteProfile | None) -> RunResult:
+    runs = dict(runs_of(data, path))
+    return run_experiment(runs[label], seed, path.parent, path, profile, label)
 
 
-@dataclass
-class RunResult:
-    summary: dict
-    trajectories: pd.DataFrame
-    supervisor: CBFSupervisor = field(repr=False)
-    cruise: SwitchedCruiseController = field(repr=False)
+def _overrides(data: dict, cbf, cruise) -> None:
+    fol = data["trains"][1]
+    if cruise is not None:
+        fol["overrides"] = {**cruise.model_dump(), **fol.get("overrides", {})}
+    if cbf is not None:
+        fol["supervisor_overrides"] = {**cbf.model_dump(), **fol.get("supervisor_overrides", {})}
 
 
-def _simulate(
-    *,
-    profile: RouteProfile,
-    cbf: CBFConfig,
-    cruise_cfg: CruiseConfig,
-    channel_cfg: ChannelConfig,
-    schedule: SpeedSchedule,
-    s_leader0: float,
-    s_follower0: float,
-    v0: float,
-    duration_s: float,
-    dt_s: float,
-    seed: int,
-    record_every: int = 5,
-) -> RunResult:
-    lead_stock = load_rolling_stock("terlizzi2024_leader")
-    fol_stock = load_rolling_stock("terlizzi2024_follower")
-    rng = np.random.default_rng(seed)
-    p_lead_true = sample_params(lead_stock, rng)
-    p_fol_true = sample_params(fol_stock, rng)
-    channel = Channel(channel_cfg)
-    leader = LeaderController(lead_stock, cruise_cfg, profile, schedule, dt_s)
-    # the paper's architecture: Algorithm 1-3 around Algorithm 4-5, no separation guard
-    stack = build_follower_stack("cbf-cruise", StackContext(ego=fol_stock, predecessor=lead_stock, step_s=dt_s, profile=profile, params=cruise_cfg,
-                                                            supervisor_params=cbf, guard=False, ego_id=FOLLOWER, predecessor_id=LEADER))
-    sup, cruise = stack.supervisor, stack.nominal
-    timed = _Timed(stack)
-    trains = [
-        OfflineTrain(LEADER, p_lead_true, PlantState(s_leader0, v0), leader, nominal=lead_stock.params(), plan=leader.broadcast_plan),
-        OfflineTrain(FOLLOWER, p_fol_true, PlantState(s_follower0, v0), timed, nominal=fol_stock.params(), sends=False),
-    ]
-    rows = []
-    last_rx = -math.inf
+def wide_trajectory(res: RunResult) -> pd.DataFrame:
+    """One row per recorded step: the leader's and the follower's state, gaps, mode, barrier, τ̄, references."""
+    tr = res.trajectories
+    lead, fol = tr[tr.train == tr.train.iloc[0]].reset_index(drop=True), tr[tr.train != tr.train.iloc[0]].reset_index(drop=True)
+    out = pd.DataFrame({"time_s": lead.time_s, "leader_position_m": lead.position_m, "leader_speed_mps": lead.speed_mps, "leader_force_n": lead.force_n,
+                        "follower_position_m": fol.position_m, "follower_speed_mps": fol.speed_mps, "follower_force_n": fol.force_n,
+                        "gap_m": fol.gap_front_to_rear_m, "interdistance_m": fol.gap_front_to_front_m})
+    for c in ("mode", "nominal_mode", "emergency", "robust_barrier_m", "true_barrier_m", "info_age_s", "tau_bar_s", "z_tau1_m", "z_tau2_m", "z_tau3_m",
+              "packet_received", "packet_delay_s"):
+        out[c] = fol[c]
+    return out
 
-    def record(step: OfflineStep) -> None:
-        nonlocal last_rx
-        xl, xf = step.states
-        cmd = step.commands[1]
-        nom = stack.stage.last_nominal
-        msg = step.observations[1].received.get(LEADER)
-        rx = msg is not None and msg.received_time_s > last_rx
-        if rx:
-            last_rx = msg.received_time_s
-        if step.k % record_every == 0 or rx or cmd.emergency:
-            rows.append(
-                {
-                    "time_s": step.time_s,
-                    "leader_position_m": xl.s_m,
-                    "leader_speed_mps": xl.v_mps,
-                    "leader_force_n": xl.force_n,
-                    "follower_position_m": xf.s_m,
-                    "follower_speed_mps": xf.v_mps,
-                    "follower_force_n": xf.force_n,
-                    "gap_m": xl.s_m - L - xf.s_m,
-                    "interdistance_m": xl.s_m - xf.s_m,
-                    "mode": cmd.mode,
-                    "nominal_mode": nom.mode,
-                    "emergency": cmd.emergency,
-                    "robust_barrier_m": cmd.info.get("cbf_barrier_m", math.nan),
-                    "true_barrier_m": cmd.info.get("cbf_true_barrier_m", math.nan),
-                    "info_age_s": cmd.info.get("cbf_info_age_s", math.nan),
-                    "tau_bar_s": nom.info.get("tau_bar_s", math.nan),
-                    "z_tau1_m": nom.info.get("z_tau1_m", math.nan),
-                    "z_tau2_m": nom.info.get("z_tau2_m", math.nan),
-                    "z_tau3_m": nom.info.get("z_tau3_m", math.nan),
-                    "packet_received": rx,
-                    "packet_delay_s": (msg.received_time_s - msg.sent_time_s) if rx else math.nan,
-                }
-            )
 
-    L = lead_stock.length_m
-    n = int(round(duration_s / dt_s))
-    # the paper's plant has one brake (K_E^F demands the strongest brake of the box, eq. 4)
-    run_convoy(trains, profile, dt_s, n * dt_s, channel=channel, record_every=0, emergency_brake=False, on_step=record)
-    cpu_ctrl = timed.seconds
-    df = pd.DataFrame(rows)
-    cpu = np.array(cpu_ctrl) * 1e3
-    st = sup.stats
-    hist = sup.history_frame()
-    em = hist.emergency.to_numpy(dtype=bool)
-    on_t = hist.time_s.to_numpy()[np.flatnonzero(em & ~np.concatenate(([False], em[:-1])))]
-    off_t = hist.time_s.to_numpy()[np.flatnonzero(~em & np.concatenate(([False], em[:-1])))]
-    episodes = 0
-    for t_on in on_t:  # activations more than 10 s after the previous release start a new episode
-        prev_off = off_t[off_t <= t_on]
-        if episodes == 0 or len(prev_off) == 0 or t_on - prev_off[-1] > 10.0:
-            episodes += 1
-    summary = {
-        "emergency_activations": st.emergency_activations,
-        "emergency_episodes": episodes,
-        "tmax_activations": st.tmax_activations,
-        "emergency_steps": st.interventions,
-        "emergency_time_s": round(st.emergency_time_s, 3),
-        "min_gap_m": float(df["gap_m"].min()),
-        "true_barrier_max": float(np.nanmax(sup.history.true_barrier_m)),
-        "robust_barrier_max": float(np.nanmax(sup.history.robust_barrier_m)),
-        "packets_sent": channel.sent,
-        "packets_delivered": channel.delivered,
-        "packets_lost": channel.lost,
-        "qp_solves": cruise.solves,
-        "qp_failures": cruise.failed_solves,
-        "follower_step_mean_ms": float(cpu.mean()),
-        "follower_step_p99_ms": float(np.percentile(cpu, 99)),
-        "seed": seed,
+def summary_row(res: RunResult, scenario: str) -> dict:
+    """The summary row of a run: the coupled distances in its first gap window (and in every window,
+    front to rear ``gap_<window>_m`` and front to front ``interdistance_<window>_m``) and its counters."""
+    windows = [w.name for w in res.experiment.measurements.gap_windows]
+    fid = res.experiment.trains[1].id
+    v = res.value
+    w0 = windows[0]
+    cbf = res.setup.followers[0].stack.supervisor
+    cruise = res.setup.followers[0].stack.nominal
+    arr = res.arrays
+    modes = np.array(arr["modes"][0])
+    k2 = np.flatnonzero((modes == "cruise-2") & (arr["t"] > 0))
+    speeds = arr["speed"][-1]
+    stopped = bool(speeds[0] < 0.1 and speeds[1] < 0.1)
+    row = {
+        "scenario": scenario, "delay_estimator": bool(cruise.cfg.delay_estimator), "convention": cbf.cfg.convention,
+        "coupled_distance_m": v("gap_front_to_rear_mean_m", fid, w0), "coupled_interdistance_m": v("gap_front_to_front_mean_m", fid, w0),
+        "reference_gap_m": v("reference_gap_mean_m", fid, w0), "coupled_speed_mps": v("leader_speed_mean_mps", fid, w0), "tau_bar_s": v("tau_bar_mean_s", fid, w0),
+        "first_k2_time_s": float(arr["t"][k2[0]]) if len(k2) else math.nan,
+        "emergency_activations": int(v("emergency_activations", fid)), "emergency_episodes": int(v("emergency_episodes", fid)),
+        "tmax_activations": int(v("tmax_activations", fid)), "emergency_steps": int(round(v("emergency_time_s", fid) / res.experiment.step_s)),
+        "emergency_time_s": round(v("emergency_time_s", fid), 3), "min_gap_m": v("min_gap_front_to_rear_m", fid),
+        "min_interdistance_m": v("min_gap_front_to_front_m", fid), "true_barrier_max": v("true_barrier_max_m", fid),
+        "robust_barrier_max": v("robust_barrier_max_m", fid), "packets_sent": int(v("packets_sent")), "packets_delivered": int(v("packets_delivered")),
+        "packets_lost": int(v("packets_lost")), "qp_solves": int(v("qp_solves", fid)), "qp_failures": int(v("qp_failures", fid)),
+        "follower_step_mean_ms": v("step_time_mean_ms", fid), "follower_step_p99_ms": v("step_time_p99_ms", fid), "seed": res.seed,
+        "both_stopped": stopped, "both_stopped_gap_m": float(arr["gap_fr"][-1, 0]) if stopped else math.nan,
+        "both_stopped_interdistance_m": float(arr["gap_ff"][-1, 0]) if stopped else math.nan, "safety_distance_m": cbf.cfg.safety_distance_m,
+        "wall_time_s": res.wall_time_s, "cpu_time_s": res.cpu_time_s,
     }
-    for m, c in cruise.mode_counts.items():
-        summary[f"share_{m}"] = round(c / max(1, sum(cruise.mode_counts.values())), 4)
-    return RunResult(summary, df, sup, cruise)
+    for w in windows:
+        row[f"gap_{w}_m"] = v("gap_front_to_rear_mean_m", fid, w)
+        row[f"interdistance_{w}_m"] = v("gap_front_to_front_mean_m", fid, w)
+    for m in res.measurements[(res.measurements.train == fid) & res.measurements.quantity.str.startswith("share_")].itertuples():
+        row[m.quantity] = round(m.value, 4)
+    return row
 
 
-class _Timed:
-    """The follower's stack with the CPU time of each step (``seconds``)."""
+def run_os1(delay_s: float, seed: int = 1, spec: OS1Spec | None = None, cbf=None, cruise=None, profile: RouteProfile | None = None, full: bool = False):
+    """OS1 for a constant channel delay (3 s and 0.8 s are the shipped files; another delay edits the 0.8 s one).
 
-    def __init__(self, stack):
-        self.stack = stack
-        self.seconds: list[float] = []
-
-    def make_step(self, obs: Observation) -> Command:
-        c0 = time.perf_counter()
-        cmd = self.stack.make_step(obs)
-        self.seconds.append(time.perf_counter() - c0)
-        return cmd
-
-    @property
-    def events(self) -> list:
-        return self.stack.events
-
-
-# -------------------------------------------------------------------------------------------
-# OS1 and OS2
-
-
-def run_os1(delay_s: float, seed: int = 1, spec: OS1Spec | None = None, cbf: CBFConfig | None = None, cruise: CruiseConfig | None = None, profile: RouteProfile | None = None, full: bool = False):
-    """OS1 for a constant channel delay; returns (summary_row, trajectories_df) (or the RunResult if ``full``)."""
+    Returns (summary row, trajectory) or, with ``full``, the :class:`~vcsumo.studies.experiment.RunResult`."""
+    path, data = _file("os1_3s" if abs(delay_s - 3.0) < 1e-9 else "os1_0.8s")
+    data = copy.deepcopy(data)
+    fol, lead = data["trains"][1], data["trains"][0]
+    data["channel"]["delay_s"] = float(delay_s)
+    fol.setdefault("overrides", {})["fixed_delay_s"] = float(delay_s)
+    _overrides(data, cbf, cruise)
     spec = spec or OS1Spec()
-    cbf0, cruise0 = load_configs()
-    cbf, cruise = cbf or cbf0, cruise or cruise0
-    cruise = cruise.model_copy(update={"line_speed_limits": False, "fixed_delay_s": delay_s})
-    profile = profile or line_profile()
-    L = load_rolling_stock("terlizzi2024_leader").length_m
-    v0 = spec.speed_schedule[0][1]
-    ch = ChannelConfig(model="constant", period_s=1.0, delay_s=delay_s, loss_probability=cbf.packet_loss_probability, seed=seed)
-    res = _simulate(
-        profile=profile, cbf=cbf, cruise_cfg=cruise, channel_cfg=ch,
-        schedule=SpeedSchedule(spec.speed_schedule, spec.brake_time_s),
-        s_leader0=spec.leader_start_m, s_follower0=spec.leader_start_m - L - spec.initial_gap_m, v0=v0,
-        duration_s=spec.duration_s, dt_s=spec.dt_s, seed=seed,
-    )
-    df = res.trajectories
-    w = df[(df.time_s >= spec.brake_time_s - spec.steady_window_s) & (df.time_s < spec.brake_time_s)]
-    end = df.iloc[-1]
-    stopped = end.leader_speed_mps < 0.1 and end.follower_speed_mps < 0.1
-    first_cruise2 = df[(df["nominal_mode"] == "cruise-2") & (df.time_s > 0)]
-    row = {
-        "scenario": "OS1",
-        "delay_s": delay_s,
-        "delay_estimator": cruise.delay_estimator,
-        "coupled_distance_m": float(w.gap_m.mean()),
-        "coupled_interdistance_m": float(w.interdistance_m.mean()),
-        "reference_gap_m": float((w.leader_position_m - L - w.z_tau2_m).mean()),
-        "coupled_speed_mps": float(w.leader_speed_mps.mean()),
-        "tau_bar_s": float(w.tau_bar_s.mean()),
-        "first_k2_time_s": float(first_cruise2.time_s.iloc[0]) if len(first_cruise2) else math.nan,
-        **res.summary,
-        "both_stopped": bool(stopped),
-        "both_stopped_gap_m": float(end.gap_m) if stopped else math.nan,
-        "safety_distance_m": cbf.safety_distance_m,
-    }
-    return res if full else (row, df)
+    if spec.duration_s is not None:
+        data["duration_s"] = spec.duration_s
+    if spec.dt_s is not None:
+        data["step_s"] = spec.dt_s
+    if spec.leader_start_m is not None:
+        offset = lead["position_m"] - fol["position_m"]
+        lead["position_m"] = spec.leader_start_m
+        fol["position_m"] = spec.leader_start_m - offset
+    if spec.initial_gap_m is not None:
+        fol.pop("position_m", None)
+        fol["gap_m"] = spec.initial_gap_m
+    sched = [list(p) for p in data["leader"]["schedule"] if p[1] > 0] if spec.speed_schedule is None else [list(p) for p in spec.speed_schedule]
+    stop = spec.brake_time_s if spec.brake_time_s is not None else next((t for t, v in data["leader"]["schedule"] if v == 0), None)
+    data["leader"]["schedule"] = sched + ([[stop, 0.0]] if stop is not None else [])
+    if spec.steady_window_s is not None:
+        data["measurements"]["gap_windows"] = [{"name": "coupled", "from_s": stop - spec.steady_window_s, "to_s": stop}]
+    res = _run(path, data, data["label"], seed, profile)
+    if full:
+        return res
+    row = {"run": f"os1_delay_{delay_s:g}s", **summary_row(res, "OS1"), "delay_s": float(delay_s)}
+    return row, wide_trajectory(res)
 
 
-def os2_channel(spec: OS2Spec, loss: float, seed: int) -> ChannelConfig:
-    return ChannelConfig(
-        model="exponential", period_s=1.0, delay_s=spec.base_delay_s, mean_extra_s=spec.base_mean_extra_s,
-        loss_probability=loss,
-        degradations=[Degradation(start_s=a, end_s=b, delay_s=d, mean_extra_s=m, loss_probability=p) for a, b, d, m, p in spec.degradations],
-        outages=[Window(start_s=spec.outage[0], end_s=spec.outage[1])],
-        seed=seed,
-    )
-
-
-def coupled_start_gap(profile: RouteProfile, cbf: CBFConfig, cruise: CruiseConfig, s_leader: float, v: float, tau_bar_s: float) -> float:
-    """Front-to-rear gap at which the follower sits on z_τ2 behind a leader cruising at v (eq. 27)."""
-    lead_stock = load_rolling_stock("terlizzi2024_leader")
-    fol_stock = load_rolling_stock("terlizzi2024_follower")
-    ctl = SwitchedCruiseController(lead_stock, fol_stock, cruise, cbf)
-    model, _ = ctl._model(profile)
-    msg = Message(sender=LEADER, sent_time_s=0.0, state=TrainStateMsg(0.0, s_leader, v), length_m=lead_stock.length_m)
-    s_f = s_leader - lead_stock.length_m - cbf.safety_distance_m
-    for _ in range(4):  # the reference depends weakly on the follower's own position (its window)
-        ref = PositionReferenceGenerator(model, cruise, 0.1).compute(msg, tau_bar_s, s_f, v, 0.0)
-        s_f = float(ref.at(0.0)[1])
-    return s_leader - lead_stock.length_m - s_f
-
-
-def run_os2(delay_estimator: bool, seed: int = 2, spec: OS2Spec | None = None, cbf: CBFConfig | None = None, cruise: CruiseConfig | None = None, profile: RouteProfile | None = None, full: bool = False):
-    """OS2 with or without the delay estimator; returns (summary_row, trajectories_df)."""
+def run_os2(delay_estimator: bool, seed: int = 2, spec: OS2Spec | None = None, cbf=None, cruise=None, profile: RouteProfile | None = None, full: bool = False):
+    """OS2 with or without the delay estimator; returns (summary row, trajectory) (or the RunResult with ``full``)."""
+    path, data = _file("os2")
+    data = copy.deepcopy(data)
+    _overrides(data, cbf, cruise)
     spec = spec or OS2Spec()
-    cbf0, cruise0 = load_configs()
-    cbf, cruise = cbf or cbf0, cruise or cruise0
-    cruise = cruise.model_copy(update={"line_speed_limits": False, "delay_estimator": delay_estimator, "fixed_delay_s": spec.fixed_delay_s})
-    profile = profile or line_profile()
-    L = load_rolling_stock("terlizzi2024_leader").length_m
-    gap0 = coupled_start_gap(profile, cbf, cruise, spec.leader_start_m, spec.speed_mps, cruise.fixed_delay_s)
-    res = _simulate(
-        profile=profile, cbf=cbf, cruise_cfg=cruise, channel_cfg=os2_channel(spec, cbf.packet_loss_probability, seed),
-        schedule=SpeedSchedule(((0.0, spec.speed_mps),)),
-        s_leader0=spec.leader_start_m, s_follower0=spec.leader_start_m - L - gap0, v0=spec.speed_mps,
-        duration_s=spec.duration_s, dt_s=spec.dt_s, seed=seed,
-    )
-    df = res.trajectories
-    w = df[(df.time_s >= spec.steady_window[0]) & (df.time_s < spec.steady_window[1])]
-    wd = df[(df.time_s >= spec.degraded_window[0]) & (df.time_s < spec.degraded_window[1])]
-    hist = res.supervisor.history_frame()
-    on = hist.emergency.astype(int).diff().fillna(hist.emergency.astype(int)) > 0
-    act_t = hist.time_s[on]
-    row = {
-        "scenario": "OS2",
-        "delay_s": math.nan,
-        "delay_estimator": delay_estimator,
-        "coupled_distance_m": float(w.gap_m.mean()),
-        "coupled_interdistance_m": float(w.interdistance_m.mean()),
-        "reference_gap_m": float((w.leader_position_m - L - w.z_tau2_m).mean()),
-        "degraded_distance_m": float(wd.gap_m.mean()),
-        "coupled_speed_mps": float(w.leader_speed_mps.mean()),
-        "tau_bar_s": float(w.tau_bar_s.mean()),
-        "tau_bar_degraded_s": float(wd.tau_bar_s.mean()),
-        "initial_gap_m": gap0,
-        **res.summary,
-        "activations_before_outage": int(((act_t >= spec.degradations[0][0]) & (act_t < spec.outage[0])).sum()),
-        "activations_after_outage": int((act_t >= spec.outage[1]).sum()),
-        "both_stopped_gap_m": math.nan,
-        "safety_distance_m": cbf.safety_distance_m,
-    }
-    return res if full else (row, df)
+    fol, ch = data["trains"][1], data["channel"]
+    if spec.duration_s is not None:
+        data["duration_s"] = spec.duration_s
+    if spec.dt_s is not None:
+        data["step_s"] = spec.dt_s
+    if spec.leader_start_m is not None:
+        data["trains"][0]["position_m"] = spec.leader_start_m
+    if spec.speed_mps is not None:
+        data["trains"][0]["speed_mps"] = fol["speed_mps"] = spec.speed_mps
+        data["leader"]["schedule"] = [[0.0, spec.speed_mps]]
+    if spec.base_delay_s is not None:
+        ch["delay_s"] = spec.base_delay_s
+    if spec.base_mean_extra_s is not None:
+        ch["exp_rate_per_s"] = 1.0 / spec.base_mean_extra_s
+    if spec.degradations is not None:
+        ch["degradations"] = [{"start_s": a, "end_s": b, "extra_delay_s": d, "extra_mean_s": m, "loss_probability": p} for a, b, d, m, p in spec.degradations]
+    if spec.outage is not None:
+        ch["outages"] = [{"start_s": spec.outage[0], "end_s": spec.outage[1]}]
+    if spec.fixed_delay_s is not None:
+        fol.setdefault("overrides", {})["fixed_delay_s"] = spec.fixed_delay_s
+    windows = data["measurements"]["gap_windows"]
+    for name, w in (("steady", spec.steady_window), ("degraded", spec.degraded_window)):
+        if w is not None:
+            windows[:] = [x for x in windows if x["name"] != name] + [{"name": name, "from_s": w[0], "to_s": w[1]}]
+    label = "estimator_on" if delay_estimator else "estimator_off"
+    res = _run(path, data, label, seed, profile)
+    if full:
+        return res
+    return {"run": f"os2_{label}", **os2_row(res), "delay_s": math.nan}, wide_trajectory(res)
 
 
-def run_all(out: Path | None = None, seed_os1: int = 1, seed_os2: int = 2) -> pd.DataFrame:
-    """OS1 (3 s, 0.8 s) and OS2 (with, without estimator); writes CSVs to ``out`` if given."""
+def os2_row(res: RunResult) -> dict:
+    """:func:`summary_row` of an OS2 run with the degraded window, τ̄ there and the activations before and after the outage."""
+    row = summary_row(res, "OS2")
+    fid = res.experiment.trains[1].id
+    row["degraded_distance_m"] = res.value("gap_front_to_rear_mean_m", fid, "degraded")
+    row["tau_bar_degraded_s"] = res.value("tau_bar_mean_s", fid, "degraded")
+    row["initial_gap_m"] = float(res.arrays["gap_fr"][0, 0])
+    exp_ch = res.experiment.channel
+    t_deg = min((w.start_s for w in exp_ch.degradations), default=math.inf)
+    out_w = exp_ch.outages[0] if exp_ch.outages else None
+    em = res.arrays["emergency"][:, 1]
+    on = res.arrays["t"][np.flatnonzero(em & ~np.concatenate(([False], em[:-1])))]
+    row["activations_before_outage"] = int(((on >= t_deg) & (on < (out_w.start_s if out_w else math.inf))).sum())
+    row["activations_after_outage"] = int((on >= out_w.end_s).sum()) if out_w else 0
+    return row
+
+
+def run_authors(seed: int = 1, full: bool = False):
+    """OS1 of the authors' code set-up and conventions (``terlizzi2024_os1_authors.yaml``)."""
+    path, data = _file("authors")
+    res = _run(path, data, data["label"], seed, None)
+    if full:
+        return res
+    return {"run": "os1_authors", **summary_row(res, "OS1"), "delay_s": math.nan}, wide_trajectory(res)
+
+
+def run_all(out: Path | None = None, seed_os1: int = 1, seed_os2: int = 2, authors: bool = True) -> pd.DataFrame:
+    """OS1 (3 s, 0.8 s), OS2 (estimator on, off) and the authors' OS1; writes CSVs to ``out`` if given."""
     rows, trajs = [], {}
     for d in (3.0, 0.8):
         r, df = run_os1(d, seed=seed_os1)
         rows.append(r)
-        trajs[f"os1_delay_{d:g}s"] = df
+        trajs[r["run"]] = df
     for est in (True, False):
         r, df = run_os2(est, seed=seed_os2)
         rows.append(r)
-        trajs[f"os2_estimator_{'on' if est else 'off'}"] = df
+        trajs[r["run"]] = df
+    if authors:
+        r, df = run_authors(seed_os1)
+        rows.append(r)
+        trajs[r["run"]] = df
     summary = pd.DataFrame(rows)
     if out is not None:
         out = Path(out)

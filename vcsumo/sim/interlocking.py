@@ -9,22 +9,36 @@ in ahead of it).
 :class:`MergeLocking` orders the trains at every merging junction (a rail signal where two tracks
 join) by the moment each one *locks* the junction: when it comes within its guaranteed stopping
 distance of the junction plus ``lock_time_s`` of running (and at the latest when it cannot stop
-before it).  The order is first come, first served, unless a scenario fixes it.  Every train behind
+before it).  The order is first come, first served, unless a scenario fixes it
+(``Scenario.merge_orders``: then a train waits for every train the fixed order puts before it that
+has not cleared the junction yet, whether or not that train has locked it) — and a convoy
+follower never goes before its predecessor (``convoys``: first come, first served would let a fast
+follower lock the junction first, and its leader and it would wait for each other).  Every train behind
 another one from a different track then
 
 * is held by SUMO: vcsumo adds a rail-signal constraint (``predecessor``: it may pass the junction
   signal only after the other train has), so SUMO never sets its route first;
-* has its movement authority end at the junction (less the margin and the position errors, as
-  behind any rear: the other train's rear may stand at the fouling point) until the other
-  train's rear has cleared the junction far enough for the regime's own authority behind that rear
-  to reach past the junction (overlap or margin, position errors, and the age of a report) — so
-  the supervision brakes it there on its guaranteed braking curve, in time, and the hand-over to
-  the authority behind the train ahead is seamless.
+* has its movement authority end as behind a rear standing at the junction (the fouling point,
+  where the other train's rear may stand) under the regime's own rule — MB and VC: the margin and
+  the position errors before it; FBS: the last signal whose overlap ends before it (the rail signal
+  of the SUMO network stands at the junction node, so the overlap beyond the merge signal would run
+  into the junction: the train waits at the signal before) — until the other train's rear has
+  cleared the junction far enough for the regime's own authority behind that rear to reach past
+  the junction (overlap or margin, position errors, and the age of a report).  So the supervision
+  brakes it there on its guaranteed braking curve, in time, and the hand-over to the authority
+  behind the train ahead (also while that train's body still fouls the junction) is seamless.
+
+A virtually coupled follower (driven by vcsumo, not by SUMO) gets the same end of authority from
+:meth:`MergeLocking.authority_distance` (the loop hands it to the driver in its ``Snapshot``), with
+one difference: behind its own convoy predecessor (``coupled_to``) the junction is released as soon
+as the predecessor's front has passed it — from there the relative-braking rule on the virtual gap
+keeps the follower behind the predecessor's rear, which then clears the junction ahead of it.
 """
 
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass, field
 
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
@@ -49,8 +63,11 @@ class _Junction:
     node: str
     order: list[str] = field(default_factory=list)
     """Trains that locked the junction, first first (removed once their rear has cleared it)."""
-    fixed: list[str] = field(default_factory=list)
-    """An order the scenario imposes (e.g. the junction study's main/branch first)."""
+    first: dict[str, set[str]] = field(default_factory=dict)
+    """Train -> the trains that must pass before it whenever they come (the order a scenario fixes,
+    e.g. the junction study's; a convoy follower's predecessors), transitively closed."""
+    cleared: set[str] = field(default_factory=set)
+    """Trains whose rear has cleared the junction (or that left the network)."""
 
 
 def merge_nodes(topo: Topology) -> set[str]:
@@ -66,8 +83,11 @@ class MergeLocking:
     """Orders trains at merging junctions and gives the ones that must wait their end of authority."""
 
     def __init__(self, model: SeparationModel, topo: Topology, trains: list[PlannedTrain], braking: dict[str, RouteBraking],
-                 fixed_orders: dict[str, list[str]] | None = None, lock_time_s: float = LOCK_TIME_S):
+                 fixed_orders: dict[str, list[str]] | None = None, lock_time_s: float = LOCK_TIME_S, signals: dict[str, list[float]] | None = None,
+                 convoys: dict[str, str] | None = None):
         self.model = model
+        self.signals = {tid: sorted(x) for tid, x in (signals or {}).items()}
+        """FBS: route positions of every train's signals (the end of authority at a junction is one of them)."""
         self.lock_time_s = lock_time_s
         self.braking = braking
         self.plans = {t.id: t for t in trains}
@@ -83,33 +103,53 @@ class MergeLocking:
         self._last_approach = {tid: max((a.s_m for a in aps), default=-math.inf) for tid, aps in self.approaches.items()}
         """The farthest junction signal on each train's route: past it nothing here concerns the train, m."""
         self.junctions: dict[str, _Junction] = {n: _Junction(n) for n in merges}
-        for node, order in (fixed_orders or {}).items():
-            if node in self.junctions:
-                self.junctions[node].fixed = list(order)
         self.gone: set[str] = set()
         self.constraints: set[tuple[str, str, str]] = set()
         """(junction, train, foe) constraints added to SUMO."""
         self.track_of: dict[tuple[str, str], str] = {(a.node, tid): a.track for tid, aps in self.approaches.items() for a in aps}
         self.position: dict[tuple[str, str], float] = {(a.node, tid): a.s_m for tid, aps in self.approaches.items() for a in aps}
+        for node, order in (fixed_orders or {}).items():
+            if node in self.junctions:  # only the trains that pass the junction
+                fixed = [tid for tid in order if (node, tid) in self.track_of]
+                for k, tid in enumerate(fixed):
+                    self.junctions[node].first.setdefault(tid, set()).update(fixed[:k])
+        for tid, pred in (convoys or {}).items():  # a follower never passes a junction before its predecessor
+            for ap in self.approaches.get(tid, ()):
+                if (ap.node, pred) in self.track_of:
+                    self.junctions[ap.node].first.setdefault(tid, set()).add(pred)
+        for j in self.junctions.values():  # transitively: behind a follower's predecessor's predecessor too
+            changed = True
+            while changed:
+                changed = False
+                for tid, firsts in j.first.items():
+                    more = set().union(*(j.first.get(x, set()) for x in firsts)) - firsts - {tid}
+                    if more:
+                        firsts |= more
+                        changed = True
+        self.s_m: dict[str, float] = {}
+        """Latest route position of every running train's front, m."""
 
     def update(self, states: dict[str, tuple[float, float]]) -> list[tuple[str, str, str]]:
         """Advance the orders with this step's (route position, speed) of the trains running;
         returns the new constraints (junction, train, foe) to add to SUMO."""
         a = self.model.assumptions
         new: list[tuple[str, str, str]] = []
+        self.s_m.update({tid: st[0] for tid, st in states.items()})
         for tid, (s_m, v) in states.items():
             stop = None  # the train's stopping distance, integrated once and only for a junction within its bound
             for ap in self.approaches.get(tid, ()):
                 j = self.junctions[ap.node]
-                if tid in j.order or s_m > ap.s_m:
+                if tid in j.order or tid in j.cleared:
                     continue
+                if tid in j.first:
+                    self._constrain(j, tid, new)  # a fixed order holds from the start: SUMO never sets the route first
                 d = ap.s_m - s_m
                 if stop is None:
                     br = self.braking[tid]
                     if s_m >= 0.0 and d > br.stopping_bound(v, a.dead_time_s) + v * self.lock_time_s + a.position_error_m:
-                        break  # this junction and the ones after it are farther than the train can need
+                        continue  # farther than the train can need (and so are the junctions after it; a fixed order is constrained above)
                     stop = br.stopping_distance(s_m, v, a.dead_time_s)
-                if d <= stop + v * self.lock_time_s + a.position_error_m:
+                if d <= stop + v * self.lock_time_s + a.position_error_m:  # also a train already past the signal
                     self._lock(j, tid, new)
         # a train leaves the order once its rear has cleared the junction (or it has left the network)
         for j in self.junctions.values():
@@ -124,28 +164,50 @@ class MergeLocking:
                     keep.append(tid)
                 elif st is None and tid not in self.gone:
                     keep.append(tid)  # not yet departed: keeps its place
+                else:
+                    j.cleared.add(tid)
             j.order = keep
         return new
 
     def arrived(self, gone: list[str]) -> None:
         """Trains that left the network."""
         self.gone.update(gone)
+        for tid in gone:
+            for ap in self.approaches.get(tid, ()):
+                if tid not in self.junctions[ap.node].order:
+                    self.junctions[ap.node].cleared.add(tid)
 
     def _lock(self, j: _Junction, tid: str, new: list) -> None:
-        if j.fixed and tid in j.fixed:
-            k = j.fixed.index(tid)
-            ahead = [x for x in j.fixed[:k]]
-            j.order = [x for x in j.order if x in ahead] + [tid] + [x for x in j.order if x not in ahead]
-        else:
-            j.order.append(tid)
-        track = self.track_of[(j.node, tid)]
-        for foe in j.order[: j.order.index(tid)]:
-            if self.track_of[(j.node, foe)] != track and (j.node, tid, foe) not in self.constraints:
-                self.constraints.add((j.node, tid, foe))
-                new.append((j.node, tid, foe))
+        # in front of the trains that must pass after it, else last
+        k = next((i for i, x in enumerate(j.order) if tid in j.first.get(x, ())), len(j.order))
+        j.order.insert(k, tid)
+        self._constrain(j, tid, new)
 
-    def authority_distance(self, tid: str, s_m: float) -> float:
-        """Distance to the end of authority a junction ahead sets (inf: none), m."""
+    def ahead(self, node: str, tid: str) -> list[str]:
+        """Trains that pass junction ``node`` before ``tid`` and have not cleared it yet."""
+        j = self.junctions[node]
+        before = j.order[: j.order.index(tid)] if tid in j.order else list(j.order)  # not locked yet: every train that has locked it goes first
+        before = [x for x in before if tid not in j.first.get(x, ())]  # never one that must pass after it
+        before += [x for x in sorted(j.first.get(tid, ())) if x not in j.cleared and x not in before]
+        return before
+
+    def _constrain(self, j: _Junction, tid: str, new: list) -> None:
+        """SUMO's rail signal lets ``tid`` pass only after every train ahead of it from another track
+        — added while that train's front has not reached the signal (SUMO counts passages from then)."""
+        track = self.track_of[(j.node, tid)]
+        for foe in self.ahead(j.node, tid):
+            if self.track_of[(j.node, foe)] == track or (j.node, tid, foe) in self.constraints:
+                continue
+            if self.s_m.get(foe, -math.inf) > self.position[(j.node, foe)]:
+                continue  # already through the signal
+            self.constraints.add((j.node, tid, foe))
+            new.append((j.node, tid, foe))
+
+    def authority_distance(self, tid: str, s_m: float, coupled_to: str | None = None) -> float:
+        """Distance to the end of authority a junction ahead sets (inf: none), m.
+
+        ``coupled_to``: the train's convoy predecessor when vcsumo drives it virtually coupled; the
+        junction is released behind it once its front has passed it (module doc)."""
         best = math.inf
         if s_m > self._last_approach.get(tid, -math.inf):
             return best
@@ -153,18 +215,31 @@ class MergeLocking:
             if ap.s_m < s_m:
                 continue
             j = self.junctions[ap.node]
-            if not j.order:
-                continue  # nobody has locked it
+            if not j.order and tid not in j.first:
+                continue  # nobody has locked it and no order fixes trains before this one
             track = ap.track
-            if tid in j.order:
-                before = j.order[: j.order.index(tid)]
-            else:  # not locked yet: every train that has locked it goes first
-                before = j.order
-            if any(self.track_of[(j.node, x)] != track for x in before):
-                # the train ahead may stand with its rear at the fouling point: the same margin and
-                # position errors as behind any rear
-                best = min(best, ap.s_m - s_m - self.model.margin_m)
+            for x in self.ahead(ap.node, tid):
+                if self.track_of[(ap.node, x)] == track:
+                    continue
+                if x == coupled_to and self.s_m.get(x, -math.inf) >= self.position[(ap.node, x)]:
+                    continue
+                best = min(best, self.behind_rear(tid, s_m, ap.s_m))  # the train ahead may stand with its rear at the fouling point
+                break
         return best
+
+    def behind_rear(self, tid: str, s_m: float, rear_m: float) -> float:
+        """Distance to the end of authority behind a rear standing at route position ``rear_m``, m:
+        FBS — the last signal whose overlap (+ the position error of the rear) ends before it, less the
+        train's own position error (as the supervision's FBS rule); otherwise margin and position errors."""
+        sig = self.signals.get(tid)
+        if sig is None:
+            return rear_m - s_m - self.model.margin_m
+        a = self.model.assumptions
+        clear = rear_m - a.overlap_m - a.position_error_m
+        k = bisect_right(sig, clear) - 1
+        if k < 0 or sig[k] < s_m - 2 * a.position_error_m - 1.0:  # no signal between: on sight behind it
+            return clear - s_m - a.position_error_m
+        return sig[k] - s_m - a.position_error_m
 
     def fouling_gap(self, tid: str, s_m: float, leader: str, leader_s_m: float) -> float | None:
         """While a train crossing into this train's route at a merge still has its rear on the other

@@ -27,7 +27,6 @@ folder, so no half-written results remain.
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 from bisect import bisect_right
@@ -41,6 +40,7 @@ import pandas as pd
 
 from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
+from vcsumo.results import write_json
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.regimes import REGIMES, Regime
 from vcsumo.signalling.separation import SeparationModel
@@ -117,6 +117,10 @@ class Snapshot:
     step_s: float
     trains: Mapping[str, TrainState]
     """Every running train of the step (read it as a mapping: the loop builds each state when asked for)."""
+    junction_authority_m: dict[str, float] = field(default_factory=dict)
+    """Distance from a convoy follower's front to the end of movement authority a merging junction
+    ahead sets (approach locking, :meth:`vcsumo.sim.interlocking.MergeLocking.authority_distance`
+    behind its predecessor), m; absent: none."""
 
 
 class Driver(Protocol):
@@ -128,6 +132,10 @@ class Driver(Protocol):
 
     def predecessor_of(self, train_id: str) -> str | None:
         """The train a follower is coupled behind (None: not a convoy follower)."""
+        ...
+
+    def stop_releases(self) -> set[str]:
+        """Trains whose stop (dwell) ends now, e.g. a follower leaving with its convoy."""
         ...
 
 
@@ -229,7 +237,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     shutil.copy2(scn.network.net_file, netdir / "line.net.xml")
     shutil.copy2(scn.network.stations_file, netdir / "stations.add.xml")
     topo = scn.network.topology
-    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo))
+    # SUMO leaves the separation model's margin and position errors behind a standing train (a convoy
+    # follower berths that far behind its leader in a shared platform)
+    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo, SeparationModel(scn.assumptions).margin_m))
     begin = math.floor(min(t.depart_s for t in scn.trains))
     if scn.end_time_s is not None:
         end = scn.end_time_s
@@ -280,7 +290,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     supervisor = locking = None
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
-        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders)
+        convoys = {t.id: scn.driver.predecessor_of(t.id) for t in scn.trains} if scn.driver is not None else {}
+        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
         supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking, braking=health.braking)
     driver = scn.driver
     if driver is not None and scn.full_outputs and hasattr(driver, "stream_records"):
@@ -333,14 +344,18 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             leads = sim.leaders(active, lookahead)
             ahead_on_route.begin_step(active, observed, lengths)
             rows: list[tuple] = []  # (vid, track, s, speed, accel, edge, lead, gap, controlled)
-            for vid, (edge, lane_pos, speed, accel, odo, ridx), lead in zip(active, observed, leads):
+            prev_pos = []
+            for vid, (edge, lane_pos, _v, _a, odo, ridx) in zip(active, observed):  # every route position first: the gap checks read the train ahead's
                 tr = state[vid]
-                prev_s = tr.s
+                prev_pos.append(tr.s)
                 if 0 <= ridx < tr.n_edges and tr.edges[ridx] == edge:  # on its route's edge (not inside a junction)
-                    s_now = tr.s = tr.sync_s = tr.starts[ridx] + lane_pos
+                    tr.s = tr.sync_s = tr.starts[ridx] + lane_pos
                     tr.sync_odo = odo
                 else:
-                    s_now = tr.s = tr.sync_s + (odo - tr.sync_odo)
+                    tr.s = tr.sync_s + (odo - tr.sync_odo)
+            for vid, (edge, lane_pos, speed, accel, odo, ridx), lead, prev_s in zip(active, observed, leads, prev_pos):
+                tr = state[vid]
+                s_now = tr.s
                 if s_now != s_now:  # nan: not yet on its route
                     continue
                 # tunnel drag: switch the vType when the front passes a portal (looked up off the stretch last found)
@@ -359,16 +374,18 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if lead is None and len(active) > 1:  # beyond SUMO's look-ahead: the train ahead on the route
                     lead = ahead_on_route.leader(vid, s_now, tr.edges, tr.starts, ridx)
                 gap = lead[1] if lead else math.inf
-                if lead is not None and locking is not None and lead[0] in state:
+                controlled = tr.controlled and driver is not None
+                if driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
+                    # before the driver's first decision a follower behind its own predecessor counts as coupled
+                    controlled = driver.predecessor_of(vid) == lead[0]
+                if lead is not None and locking is not None and lead[0] in state and not controlled:
+                    # absolute braking stops short of the fouling point; relative braking keeps to SUMO's gap to
+                    # the rear projected onto this route (the leader's body clears the junction as that rear moves on)
                     g = locking.fouling_gap(vid, s_now, lead[0], state[lead[0]].s)
                     if g is not None:
                         gap = g
                 if gap < tr.min_gap:
                     tr.min_gap = gap
-                controlled = tr.controlled and driver is not None
-                if driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
-                    # before the driver's first decision a follower behind its own predecessor counts as coupled
-                    controlled = driver.predecessor_of(vid) == lead[0]
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))
                     tr_s.append(s_now)
@@ -397,7 +414,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if required is not None:
                     sec, km_v = tr.plan.profile.km_at(s_now)  # the gap just fell below the safe separation
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))
-                if perm is not None and perm.speed_mps < speed + 2.0:
+                # a standing train is left to SUMO (commanding it to move would abort its stop); the cap takes it from the step it moves
+                if perm is not None and perm.speed_mps < speed + 2.0 and not (speed < 0.01 and perm.speed_mps > 0.0):
                     caps[vid] = perm.speed_mps
             c = clock()
             cpu["health"] += c - c_mark
@@ -454,8 +472,17 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             if driver is not None:
                 t0 = time.perf_counter()
                 snap = _StepTrains(t, {r[0]: (r[1].plan.profile, r[2], r[3], r[4], r[5], r[6][0] if r[6] else None, r[7]) for r in rows})
-                commands = driver.make_step(Snapshot(t, dt, snap))
+                ends = {}
+                if locking is not None:  # what the approach locking allows each convoy follower at the merges ahead
+                    for r in rows:
+                        pred = driver.predecessor_of(r[0])
+                        d_ma = locking.authority_distance(r[0], r[2], coupled_to=pred) if pred is not None else math.inf
+                        if d_ma < math.inf:
+                            ends[r[0]] = d_ma
+                commands = driver.make_step(Snapshot(t, dt, snap, ends))
                 timing["controller_s"] += time.perf_counter() - t0
+                for vid in driver.stop_releases():
+                    sim.resume(vid)
                 for vid, v_cmd in commands.items():
                     tr = state.get(vid)
                     if tr is None:
@@ -504,5 +531,5 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     result.speed_traces = traces
     cpu["io"] += clock() - c_mark
     result.summary["loop_cpu_s"] = {k: round(v, 3) for k, v in cpu.items()}
-    (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
+    write_json(out / "summary.json", result.summary)
     return result

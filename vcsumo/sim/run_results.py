@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from vcsumo.errors import SumoError
+from vcsumo.results import write_csv
 from vcsumo.sim.health import HealthMonitor
 from vcsumo.sim.sumo_io import read_sumo_log
 
@@ -141,8 +142,8 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         and summary["sumo_emergency_brakings"] == 0
     )
     passages.to_csv(out / "passages.csv", index=False)
-    stops.to_csv(out / "stop_events.csv", index=False)
-    trains_df.to_csv(out / "summary.csv", index=False)
+    write_csv(stops, out / "stop_events.csv")
+    write_csv(trains_df, out / "summary.csv")
     io = time.perf_counter() - t_io
     summary["io_time_s"] = round(io, 3)
     summary["wall_time_s"] = round(wall + io, 3)

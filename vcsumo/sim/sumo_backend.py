@@ -338,6 +338,12 @@ class SumoBackend:
         self._ls.vehicle.setSpeed(vid, -1)
 
     @_traci
+    def resume(self, vid: str) -> None:
+        """End a train's current stop (its dwell) if it is standing at one."""
+        if self._ls.vehicle.getStopState(vid) & 1:
+            self._ls.vehicle.resume(vid)
+
+    @_traci
     def add_constraint(self, signal: str, train: str, foe_signal: str, foe: str) -> None:
         """Rail-signal constraint: ``train`` may pass ``signal`` only after ``foe`` passed ``foe_signal``."""
         self._ls.trafficlight.addConstraint(signal, train, foe_signal, foe, 0, 1)

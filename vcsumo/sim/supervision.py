@@ -11,10 +11,13 @@ would run faster.  Targets:
 
 * every place where the speed limit drops (the train must be down to the limit when its front gets
   there; SUMO holds the lower limit until the whole train has passed);
-* its next scheduled stop: the curve ends at SUMO's stopping point, and the train keeps at least
-  a creep speed of 0.3 m/s until it is there (a curve that ends exactly there would approach it
-  for ever; one that ends beyond it hands SUMO a train too fast to stop and SUMO skips the stop:
-  both seen on the graded regional line);
+* its next scheduled stop: the curve ends at SUMO's stopping point, the train keeps a creep speed
+  of 0.3 m/s until SUMO's own discrete stopping rule taken at the guaranteed deceleration is lower,
+  and enters the last 10 cm (where SUMO counts the stop reached) at 0.08 m/s, below SUMO's halting
+  speed, so SUMO's stop logic takes it whatever braking SUMO plans with (a curve that ends exactly
+  there approaches it for ever; one that ends beyond it hands SUMO a train too fast to stop; a
+  constant creep carries the train past its stopping point at 0.1 s steps: all seen on the graded
+  regional line);
 * the end of its route where it has to stop there: the end of the track (less the position
   error, after the dead time), or an open end of the network, where SUMO ends the trip with a
   stop (served like a scheduled stop);
@@ -45,10 +48,21 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from vcsumo.errors import VcsumoError
+from vcsumo.dynamics import discrete_stop_speed
 from vcsumo.running_time import STOP_CREEP_MPS
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.timetable import PlannedTrain
 
+
+
+STOP_REACHED_M = 0.5
+"""A train standing this close to its stopping point has reached it: the stop stops being a target
+(SUMO holds it for its dwell; it may leave after), m."""
+STOP_THRESHOLD_M = 0.1
+"""SUMO counts a stop reached from this far before its stopping point (POSITION_EPS), m."""
+STOP_ARRIVAL_MPS = 0.08
+"""The last centimetres into a stop are run at this speed, below SUMO's halting speed (0.1 m/s), so
+SUMO's stop logic takes the train whatever braking it plans with, m/s."""
 
 
 @dataclass
@@ -202,8 +216,8 @@ class BrakingCurveSupervisor:
         rs = c.restriction_s
         k0 = bisect_right(rs, s_m)  # the first restriction ahead
         stops = c.stops
-        while c.next_stop < len(stops) and stops[c.next_stop] < s_m - 1.0:
-            c.next_stop += 1
+        while c.next_stop < len(stops) and (stops[c.next_stop] < s_m - 1.0 or (stops[c.next_stop] < s_m + STOP_REACHED_M and v_mps < 0.05)):
+            c.next_stop += 1  # passed, or standing at it (SUMO holds the train for its dwell)
         d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s) if leader_id is not None else math.inf
         if self.locking is not None:
             d_lock = self.locking.authority_distance(train_id, s_m)
@@ -233,7 +247,11 @@ class BrakingCurveSupervisor:
         if c.next_stop < len(c.stops):
             s_t = c.stops[c.next_stop]
             if s_t - s_m <= reach:
-                vp = max(STOP_CREEP_MPS, br.permitted_speed(s_m, s_t, 0.0, 1.5 * dt, v_mps))
+                # the creep ends on SUMO's own discrete stopping rule at the guaranteed deceleration, so
+                # SUMO's stop logic can always finish the stop
+                d = s_t - s_m - STOP_THRESHOLD_M
+                creep = min(STOP_CREEP_MPS, max(STOP_ARRIVAL_MPS, discrete_stop_speed(d, br.decel_at(s_m, v_mps), dt))) if d > 0 else STOP_ARRIVAL_MPS
+                vp = max(creep, br.permitted_speed(s_m, s_t, 0.0, 1.5 * dt, v_mps))
                 if vp < best:
                     best, reason = vp, "stop"
         if c.end_s is not None and c.end_s - s_m <= reach:

@@ -46,7 +46,6 @@ e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part reads ``controller
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import time
@@ -67,7 +66,9 @@ from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.errors import InputError
+from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
+from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
 from vcsumo.sim.records import VC_RECORD_COLUMNS, VC_RECORD_FLOATS, CsvStream, RunningStats
 from vcsumo.timetable import PlannedTrain, TimetableFile
@@ -192,6 +193,8 @@ class _Follower:
     """The link to the predecessor is up (set at the first step both run)."""
     braking: RouteBraking | None = None
     """The follower's guaranteed braking on its route under the absolute rule (stop hand-over)."""
+    stood_since_s: float = math.nan
+    """Since when it stands at a shared stop behind its predecessor, s."""
 
     @property
     def stage(self):
@@ -208,8 +211,10 @@ class VCDriver:
 
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
                  cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
-                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None):
+                 plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None,
+                 junction: JunctionPolicy | None = None):
         self.name, self.params_spec = parse_controller(controller)
+        self.junction = junction  # link handshake, braking curves to lower limits and to the end of authority at merges
         self.assumptions = assumptions or load_assumptions()
         self.model = SeparationModel(self.assumptions)
         self.step_s = step_s
@@ -258,6 +263,8 @@ class VCDriver:
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
         arrange_convoy_departures(convoys, {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}, self.model)
+        self.aligned_stops = align_convoy_stops(convoys)
+        self.releases: set[str] = set()
 
     # -----------------------------------------------------------------------------------
     def _send(self, snap: Snapshot) -> None:
@@ -309,8 +316,14 @@ class VCDriver:
         keep = times <= t + self.plan_horizon_s + 1e-9
         return times[keep], pos[keep], spd[keep], frc[keep]
 
+    def stop_releases(self) -> set[str]:
+        """Followers whose stop ends now (their convoy leaves the shared platform); cleared on reading."""
+        out, self.releases = self.releases, set()
+        return out
+
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
+        whole, snap = snap, (self.junction.visible(snap) if self.junction is not None else snap)
         self._send(snap)
         t = snap.time_s
         commands: dict[str, float] = {}
@@ -365,6 +378,16 @@ class VCDriver:
                         f.stop_handovers += 1
                     f.at_stop = True
                     coupled = False
+                # the convoy leaves a shared platform together: once the follower stands at its stop
+                # behind its predecessor and the predecessor moves off, the follower's dwell ends too
+                if f.at_stop and in_platform and v < 0.01:
+                    if math.isnan(f.stood_since_s):
+                        f.stood_since_s = t
+                    elif t - f.stood_since_s >= MIN_CONVOY_DWELL_S and pst.speed_mps > 0.1:
+                        self.releases.add(fid)
+                        f.stood_since_s = math.nan
+                else:
+                    f.stood_since_s = math.nan
             if not coupled:
                 if f.coupled:
                     f.released_at_s = t
@@ -420,7 +443,15 @@ class VCDriver:
                     sensed_gap, gap_comm, cmd.force_n, cmd.mode, cmd.emergency, cmd.infeasible,
                     cmd.info.get("cbf_true_barrier_m"), cmd.info.get("cbf_robust_barrier_m"), v_nominal, v_guard, v_next,
                 ))
+        if self.junction is not None:
+            commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands
+
+    def coupled_spacing_m(self, train_id: str, v_mps: float) -> float:
+        """The spacing a follower's stack keeps behind its predecessor at a common speed v: its
+        controller's coupled gap, at least its minimum safe gap (with a CBF: the safety distance d), m."""
+        f = self.followers[train_id]
+        return max(f.stack.coupled_gap_m(v_mps), f.d_min)
 
     # -----------------------------------------------------------------------------------
     def predecessor_of(self, train_id: str) -> str | None:
@@ -477,7 +508,7 @@ class VCDriver:
                         "emergency_activations": f.emergency_episodes, "supervisor_interventions": f.interventions, "guard_interventions": f.guard_interventions,
                         "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes,
                         "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps})
-        (out / "vc_summary.json").write_text(json.dumps({"summary": self.summary(), "followers": per}, indent=2, default=str))
+        write_json(out / "vc_summary.json", {"summary": self.summary(), "followers": per})
 
 
 def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
@@ -509,6 +540,31 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
                                  stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
             clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
             ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
+
+
+MIN_CONVOY_DWELL_S = 5.0
+"""A follower released from a shared stop with its leader has stood there at least this long, s."""
+
+
+def align_convoy_stops(convoys: list[list[PlannedTrain]], window_s: float = 300.0) -> dict[str, int]:
+    """A convoy leaves a station it stops at together: a follower's scheduled departure from a station
+    its predecessor also stops at is brought forward to the predecessor's when it is at most
+    ``window_s`` later (a timetable written "follower 30 s behind" would otherwise keep it 30 s
+    behind for ever: it cannot run faster than its leader at the line speed).  Returns the number
+    of departures moved per follower."""
+    moved: dict[str, int] = {}
+    for members in convoys:
+        for k in range(1, len(members)):
+            ego, ahead = members[k], members[k - 1]
+            dep = {x.station: x.departure_s for x in ahead.stops if x.departure_s is not None}
+            n = 0
+            for x in ego.stops:
+                d = dep.get(x.station)
+                if d is not None and x.departure_s is not None and 0.0 < x.departure_s - d <= window_s:
+                    x.departure_s = d
+                    n += 1
+            moved[ego.id] = n
+    return moved
 
 
 def make_vc_driver(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain], controller: str, step_s: float, seed: int = 42,

@@ -110,6 +110,15 @@ class RouteSetup:
     stops_full: list[tuple[str, str, float, float, float]]
     """(station, platform, route position of the stop, dwell, platform length) on the full track."""
     rel_km: float
+    approach: pd.DataFrame | None = None
+    """The unhindered supervised run from the start of the track to the release point (None: standing start)."""
+
+    def depart_speed(self, s_m: float) -> float:
+        """Release speed of a train whose front is at route position ``s_m`` (≤ the release point): the
+        supervised approach run's speed there, so a convoy follower starting in a lower limit keeps it, m/s."""
+        if self.approach is None or s_m >= self.release_s - 1e-6:
+            return self.v0
+        return min(self.v0, speed_at(self.approach, s_m))
 
 
 def _intermediate_stops(line: Line, net: BuiltNetwork, direction: str, full: RouteProfile, release_s: float) -> list[tuple[str, str, float, float, float]]:
@@ -133,13 +142,14 @@ def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: s
     rel = release_km(line, direction)
     s_rel = full.s_of("main", rel)
     start = min(stock.length_m + 1.0, full.length_m)
+    run0 = None
     if s_rel <= start + 1.0:
         s_rel, v0 = start, 0.0
     else:
         curve = RouteBraking(model, stock, full).curve(1.5 * step_s) if model is not None else None
         run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False, curve=curve)
         v0 = speed_at(run0, s_rel)
-    return RouteSetup(direction, list(track.edges), full, s_rel, v0, _intermediate_stops(line, net, direction, full, s_rel), rel)
+    return RouteSetup(direction, list(track.edges), full, s_rel, v0, _intermediate_stops(line, net, direction, full, s_rel), rel, run0)
 
 
 def _train_at(topo, setup: RouteSetup, stock: RollingStock, tid: str, s_depart: float, stops: list, depart_s: float, service: str) -> PlannedTrain:
@@ -152,7 +162,7 @@ def _train_at(topo, setup: RouteSetup, stock: RollingStock, tid: str, s_depart: 
     pstops = [PlannedStop(pid, st, s - off, dwell, None, None, plen) for st, pid, s, dwell, plen in stops]
     return PlannedTrain(
         id=tid, service=service, stock=stock, edges=edges, profile=prof, depart_s=depart_s, depart_pos_m=s_depart - off,
-        depart_speed_mps=setup.v0, direction=setup.direction, stops=pstops, end_pos_m=None, start_s_m=s_depart - off, stop_at_end=False,
+        depart_speed_mps=setup.depart_speed(s_depart), direction=setup.direction, stops=pstops, end_pos_m=None, start_s_m=s_depart - off, stop_at_end=False,
     )
 
 
@@ -176,6 +186,11 @@ def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float
     stops = setup.stops_full if case.pattern == "all-stops" else []
     return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops],
                           stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
+
+
+def check_position_m(setup: RouteSetup) -> float:
+    """Where a case's headway is checked (measuring point of the runs, end of the analytic maximum), m."""
+    return setup.full.length_m - 100.0
 
 
 def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,
@@ -213,7 +228,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     model = SeparationModel(assumptions)
     dt = vc_step_s if case.regime == "vc" else step_s
     run = leader_run(setup, stock, case, dt, model)
-    s_check = setup.full.length_m - 100.0
+    s_check = check_position_m(setup)
     init_gap = _initial_gap(model, stock, setup.v0) if case.convoy_size > 1 else 0.0
     theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check)
     guess = theory.headway_s

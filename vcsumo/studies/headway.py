@@ -39,6 +39,7 @@ from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
+from vcsumo.results import write_csv
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
@@ -232,7 +233,7 @@ def run_headway_study(
         prog = progress_factory(f"{d} {r} {st.name}") if progress_factory else None
         rows += run_headway_case(line, net, st, d, r, sub, pts, step_s=step_s, n_trains=n_trains, tolerance_s=tolerance_s, progress=prog, assumptions=assumptions)
     df = pd.DataFrame(rows, columns=HEADWAY_COLUMNS)
-    df.to_csv(out / "headway.csv", index=False)
+    write_csv(df, out / "headway.csv")
     from vcsumo.plots.charts import plot_headway
 
     plot_headway(df, out / "headway.png")

@@ -22,9 +22,9 @@ def convoy_rear_lag(inp: HeadwayInputs, convoy_size: int):
     s = run["s_m"].to_numpy()
     v = run["speed_mps"].to_numpy()
     L = inp.stock.length_m
-    speeds = np.unique(np.round(v, 0))
-    gaps = {float(x): inp.model.vc_gap(inp.stock, inp.stock, float(x)) for x in speeds}
-    delta = (convoy_size - 1) * (L + np.array([gaps[float(x)] for x in np.round(v, 0)]))
+    grid = np.arange(0.0, np.ceil(float(v.max())) + 1.0)  # the gap on a 1 m/s grid, interpolated (not at the rounded speed: below it)
+    gaps = np.array([inp.model.vc_gap(inp.stock, inp.stock, float(x)) for x in grid])
+    delta = (convoy_size - 1) * (L + np.interp(v, grid, gaps))
     rear_front = np.maximum.accumulate(s - delta)  # where the last train's front is, as the leader runs
     keep = np.concatenate([[True], np.diff(rear_front) > 1e-6])
     s_last, t_last = rear_front[keep], t[keep]

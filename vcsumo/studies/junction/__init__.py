@@ -27,13 +27,18 @@ service*, which has to merge in behind.  Under VC the pair is one convoy
 **Arrival offset** Δ: with a merge, the time between the two trains reaching the merge junction
 when each runs alone (unhindered, in SUMO, same regime and step; release times are set to give Δ;
 Δ = 0 is the *simultaneous arrival*); without a merge, the interval between the two releases at the
-common release point (the sweep starts at the relative braking distance at the release speed).
+common release point (the sweep starts at the regime's safe separation there: the relative-braking gap
+under VC, the absolute one under FBS and MB, at the release speed).
 
-The interlocking serves the merge in the planned order in every regime: a SUMO rail-signal
-``predecessor`` constraint lets the follower pass the merge signal only after the leader has.
-SUMO's own rule is first come, first served by approach, which lets a fast VC follower claim the
-junction before its convoy leader on the branch; the leader then stops at red and the follower,
-coupled behind it, slows down with it (see the study's report).
+The interlocking serves the merge in the planned order in every regime, through the loop's one
+merge-order mechanism, the approach locking of :mod:`vcsumo.sim.interlocking` with the order fixed
+(``Scenario.merge_orders``: leader, then follower): SUMO is told from the start to let the
+follower pass the merge signal only after the leader (a rail-signal ``predecessor`` constraint),
+and the follower's movement authority ends at the junction (less the margin and the position
+errors) until the leader has cleared it — the SUMO-driven follower is supervised to it on its
+guaranteed braking curve, the VC follower keeps the same curve through its driver's junction option
+(below), released as soon as its own convoy leader's front has passed.  SUMO's own rule (first
+come, first served by approach) would let a fast follower claim the junction before its leader.
 
 Definitions (positions are train fronts; the **virtual gap** is the front-to-rear distance from
 the follower to the leader along their shared track, computed as the difference of their
@@ -50,10 +55,24 @@ distances to the junction — before a merge the two trains are on different tra
   sweep (``offsets_s``, extended until unhindered), refined by bisection to ``resolution_s``.
 * **junction headway** h: the time between the two fronts passing the junction node in the run at
   Δ*; **junction throughput** = 3600/h trains/h (a stream of such pairs, each train merging in
-  behind the previous one as closely as the regime allows).  ``junction_throughput_trains_per_h``
-  is that of the studied junction in the row's direction (``junction_kind``).  After a merge the
-  spacing at the split is set upstream: ``split_is_bottleneck`` says whether the split needed a
-  larger offset than the merge (if not, the split throughput is a lower bound).
+  behind the previous one as closely as the regime allows).  At a merge two offsets are searched:
+  ``merge_junction_*`` — both trains unhindered *up to the junction node* (lost time at the node
+  within ``tolerance_s``, in order, no violation in the merge window): what the junction costs; and
+  ``merge_*`` — unhindered through the merge check point, which adds forming up behind the leader
+  on the trunk (a faster follower catching up, a VC follower closing to or opening to its coupled
+  spacing: the cost of following and coupling, not of the junction; ``merge_trunk_lost_s`` is the
+  follower's lost time between the junction and the check point at the junction's offset).
+  ``junction_throughput_trains_per_h`` is the studied junction's in the row's direction
+  (``junction_kind``): the merge junction's own, or the split's.  After a merge the spacing at the
+  split is set upstream: ``split_is_bottleneck`` says whether the split needed a larger offset than
+  the merge (if not, the split throughput is a lower bound).
+* **run health** (:mod:`vcsumo.sim.health`) over every simulation of the case (sweep probes and
+  analysis runs): ``healthy`` only if every run was, ``unhealthy_runs``, the smallest margin to the
+  regime's safe separation (``min_margin_m``), time below it, and the counters summed (gap
+  violations and collisions of all runs, stops skipped, overspeed events and the largest excess,
+  braking beyond the service rate, overruns of the end of authority, SUMO emergency stops and
+  brakings, teleports) with the largest impact speed.  A case that is not healthy is marked on the
+  terminal; the sweep plot marks its unhealthy offsets.
 * **formation** (Δ = 0 run, with a merge): *start* = where the follower first runs slower than it
   does alone by more than max(0.3 m/s, 0.5 %) — it begins to give way — reported as the distance of
   its front before the merge junction (``formation_start_m_before_merge``: how far before the
@@ -82,23 +101,23 @@ distances to the junction — before a merge the two trains are on different tra
   service braking distance.  Above the emergency deceleration a train obeying the signal with its
   brakes could not have stopped.
 
-The VC follower (:class:`~vcsumo.sim.junction_policy.JunctionPolicy`: options of the VC driver)
------------------------------------------------------------------------------------------------
+The VC follower (``VCDriver(..., junction=JunctionPolicy(...))``, :mod:`vcsumo.sim.junction_policy`)
+---------------------------------------------------------------------------------------------------
 * **link handshake**: it joins its convoy only once the first message of its predecessor has
-  arrived (before that SUMO drives it).  ``VCDriver`` couples as soon as the predecessor is in the
-  simulation; with no message yet its guard assumes the predecessor stands at the follower's own
-  front and commands an emergency brake (a leader inserted on the other approach triggers it).
-* **static speed profile**: its command is capped by the braking curve (service deceleration, as
-  SUMO's own driver) to every lower limit ahead — turnouts and speed restrictions.  The controllers
-  only see the limit under the train: a follower diverging at a split otherwise enters the turnout
-  at line speed.
-* ``junction_signal`` variant ``sumo`` — nothing more: the follower runs under speed mode 26, where
-  SUMO enforces a red signal only by stopping the train at the signal within one step (no braking
-  curve).  Variant ``braking-curve`` — while its predecessor's front has not passed the merge
-  junction (the time SUMO's moving-block junction signal can be red for it: SUMO turns it green when
-  the leader's front passes) the follower must be able to stop at the junction signal with the
-  deceleration the guard relies on (``controllers/guard.yaml``); steps at which even that could not
-  stop it are counted (``junction_signal_overruns``).
+  arrived and puts the predecessor virtually ahead of it by at least the spacing its stack keeps
+  (coupled gap, at least d_min / the CBF's d); before that SUMO drives it, supervised.  Coupled at
+  once, a follower virtually a few metres behind a faster leader on the other approach was braked
+  to a standstill by its guard (and a cbf-cbc one held until the gap reached the CBF's 1,000 m):
+  a flat ~30 s charged at every offset that was the cost of coupling, not of the junction.
+* **static speed profile**: its command is capped by its guaranteed braking curve (the separation
+  model's :class:`~vcsumo.signalling.separation.RouteBraking`, as the supervision of SUMO-driven
+  trains) to every lower limit ahead — turnouts and speed restrictions.
+* ``junction_signal`` variant ``braking-curve`` (default): the end of movement authority at the
+  merge the loop's approach locking sets, handed to the driver in the ``Snapshot``, is kept on the
+  guaranteed braking curve after the assumption set's dead time; steps at which even the
+  guaranteed emergency brake could not stop it there are counted (``junction_signal_overruns``).
+  Variant ``sumo``: nothing more than speed mode 26, where SUMO enforces a red signal only by
+  stopping the train at the signal within one step (kept for the comparison).
 
 Outputs: ``junction.csv`` (one row per line, junction, direction, leader service, regime,
 controller, VC variant), ``junction_sweep.csv`` (every simulated offset), ``junction_trajectories.csv``
@@ -109,22 +128,22 @@ around the junction, read from ``junction_trajectories.csv``) and ``junction_swe
 Package layout: :mod:`~vcsumo.studies.junction.model` (junctions of a line, routes, geometry,
 release times, one SUMO run), :mod:`~vcsumo.studies.junction.metrics` (the measures of a run) and
 :mod:`~vcsumo.studies.junction.study` (cases, sweep and bisection, tables and plots).  SUMO's
-files go through :mod:`vcsumo.sim.sumo_io` (the junction signals' recording and the merge order
-constraint are one additional file next to the stations file).
+files go through :mod:`vcsumo.sim.sumo_io` (the junction signals' recording is an additional file
+next to the stations file); the merge order goes through ``Scenario.merge_orders``.
 """
 
 from __future__ import annotations
 
 from vcsumo.studies.junction.metrics import (HINDRANCE_ABS_MPS, HINDRANCE_REL, actual_order, formation, lost_time, run_metrics, signal_exposure,
                                              signal_rows, speed_at_trace, trajectory_rows, unhindered, virtual_gap)
-from vcsumo.studies.junction.model import (ROLES, SIGNAL_VARIANTS, Case, JunctionVCDriver, RunResult, Setup, build_setup, default_junctions, link_of,
+from vcsumo.studies.junction.model import (ROLES, SIGNAL_VARIANTS, Case, RunResult, Setup, build_setup, default_junctions, link_of,
                                            measuring_points, merge_direction, partner_junction, resolve_junctions, signal_links, signal_nodes,
                                            simulate_pair, solo_runs, trains_for)
 from vcsumo.studies.junction.study import DEFAULT_OFFSETS_S, JUNCTION_COLUMNS, CaseOutcome, cases_for, run_case, run_junction_study
 
 __all__ = [
-    "DEFAULT_OFFSETS_S", "HINDRANCE_ABS_MPS", "HINDRANCE_REL", "JUNCTION_COLUMNS", "ROLES", "SIGNAL_VARIANTS", "Case", "CaseOutcome", "JunctionVCDriver",
-    "RunResult", "Setup", "actual_order", "build_setup", "cases_for", "default_junctions", "formation", "link_of", "lost_time", "measuring_points",
+    "DEFAULT_OFFSETS_S", "HINDRANCE_ABS_MPS", "HINDRANCE_REL", "JUNCTION_COLUMNS", "ROLES", "SIGNAL_VARIANTS", "Case", "CaseOutcome", "RunResult",
+    "Setup", "actual_order", "build_setup", "cases_for", "default_junctions", "formation", "link_of", "lost_time", "measuring_points",
     "merge_direction", "partner_junction", "resolve_junctions", "run_case", "run_junction_study", "run_metrics", "signal_exposure", "signal_links",
     "signal_nodes", "signal_rows", "simulate_pair", "solo_runs", "speed_at_trace", "trains_for", "trajectory_rows", "unhindered", "virtual_gap",
 ]

@@ -211,9 +211,14 @@ def run_metrics(setup: Setup, case: Case, run: RunResult, solo: dict[str, RunRes
 
 
 def unhindered(m: dict, label: str, tolerance_s: float, setup: Setup) -> bool:
-    """The pair passes the merge ('merge') or the split ('split') without hindrance (module doc)."""
+    """The pair passes the merge junction ('junction': up to the junction node), the merge ('merge':
+    up to the merge check point) or the split ('split') without hindrance (module doc)."""
     if m["collisions"] or m["teleports"]:
         return False
+    if label == "junction":
+        if m["gap_violations_merge"]:
+            return False
+        return m["follower_lost_M_s"] <= tolerance_s and m["leader_lost_M_s"] <= tolerance_s and m["order_kept"]
     if label == "merge":
         if m["gap_violations_merge"]:
             return False

@@ -21,10 +21,12 @@ from vcsumo.line import Branch, Line
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import speed_at, unhindered_run
-from vcsumo.sim.junction_policy import JunctionPolicy, MergeSignal
-from vcsumo.sim.loop import MeasuringPoint, Scenario, Snapshot, simulate
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import SeparationModel
+from vcsumo.sim.junction_policy import JunctionPolicy
+from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.sim.sumo_io import PredecessorConstraint, SignalRecording, SumoLogCounts, rail_signal_links, read_signal_switches, read_sumo_log, write_additional
+from vcsumo.sim.sumo_io import SignalRecording, SumoLogCounts, rail_signal_links, read_signal_switches, read_sumo_log, write_additional
 from vcsumo.control.guard import load_guard
 from vcsumo.sim.vc_driver import VCDriver, load_channel
 from vcsumo.timetable import PlannedTrain
@@ -74,8 +76,9 @@ def default_junctions(line: Line) -> list[str]:
     return [brs[0].id]
 
 
-def resolve_junctions(line: Line, spec: list[str] | str | None) -> list[str]:
-    """Branch ids to study ('all', a list, or None for the default); errors name the file and field."""
+def resolve_junctions(line: Line, spec: list[str] | str | None, path: str | Path | None = None, field: str = "--junction") -> list[str]:
+    """Branch ids to study ('all', a list, or None for the default). A line without branches is the line
+    file's error; an unknown id is the request's: named by ``path`` (the study file) and ``field``."""
     if not line.data.branches:
         raise InputError(line.path, "branches", "the line has no branches: the junction study needs at least one junction (a branch's junction_km)")
     ids = [b.id for b in line.data.branches]
@@ -87,7 +90,7 @@ def resolve_junctions(line: Line, spec: list[str] | str | None) -> list[str]:
     for s in items:
         sid = s.removeprefix("branch:")
         if sid not in ids:
-            raise InputError(line.path, "branches", f"unknown junction '{s}' (--junction takes a branch id: {', '.join(ids)}, or 'all')")
+            raise InputError(path, field, f"unknown junction '{s}' (the branches of {line.path}: {', '.join(ids)}, or 'all')")
     return [s.removeprefix("branch:") for s in items]
 
 
@@ -299,20 +302,6 @@ def signal_output(out: Path, node: str) -> Path:
     return out / f"junction_signal_{node}.xml"
 
 
-class JunctionVCDriver(VCDriver):
-    """The VC driver with the junction options of a :class:`~vcsumo.sim.junction_policy.JunctionPolicy`:
-    the policy sees each step's snapshot first (link handshake) and caps the driver's commands after
-    it (braking curves to lower limits ahead and to the merge signal)."""
-
-    def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int, channel, guard, policy: JunctionPolicy):
-        super().__init__(convoys, controller, step_s, seed, channel, guard=guard)
-        self.policy = policy
-
-    def make_step(self, snap: Snapshot) -> dict[str, float]:
-        snap = self.policy.visible(snap)
-        return self.policy.limit(snap, super().make_step(snap), self.channel.latest)
-
-
 def trains_for(setup: Setup, first: str, offset_s: float, solo_times: dict[str, float]) -> tuple[list[PlannedTrain], dict[str, float]]:
     """Leader first; release times so that, alone, the follower reaches the merge ``offset_s`` after
     the leader (without a merge: the follower is released ``offset_s`` after the leader at the same point)."""
@@ -356,24 +345,20 @@ def simulate_pair(setup: Setup, case: Case, offset_s: float, solo_times: dict[st
     else:
         trains, deps = trains_for(setup, case.first, offset_s, solo_times or {})
     nodes = signal_nodes(setup)
-    constraints = []
-    if ordered and len(trains) == 2 and setup.merge_node:  # the merge signal serves the pair in the planned order
-        constraints.append(PredecessorConstraint(setup.merge_node, trains[1].id, (trains[0].id,)))
-    additional = write_additional(out / "network" / "junction.add.xml", [SignalRecording(n, signal_output(out, n)) for n in nodes], constraints)
+    additional = write_additional(out / "network" / "junction.add.xml", [SignalRecording(n, signal_output(out, n)) for n in nodes])
+    # the interlocking serves the merge in the planned order (the loop's approach locking, sim/interlocking.py)
+    orders = {setup.merge_node: [t.id for t in trains]} if ordered and len(trains) == 2 and setup.merge_node else {}
+    assumptions = load_assumptions()
     driver = policy = None
     if case.regime == "vc" and len(trains) == 2:
-        leader, follower = trains
-        guard = load_guard(None)
-        merge = {}
-        if case.variant == "braking-curve" and setup.merge is not None:
-            merge = {follower.id: MergeSignal(setup.s_merge[follower.id], setup.s_merge[leader.id])}
-        policy = JunctionPolicy([[leader, follower]], dt, link_handshake=link_warmup, speed_profile=speed_profile, merge_signals=merge,
-                                signal_decel="emergency")
-        driver = JunctionVCDriver([[leader, follower]], case.controller, dt, seed, load_channel(None), guard, policy)
+        policy = JunctionPolicy([trains], dt, SeparationModel(assumptions), link_handshake=link_warmup, speed_profile=speed_profile,
+                                merge_authority=case.variant == "braking-curve")
+        driver = VCDriver([trains], case.controller, dt, seed, load_channel(None), guard=load_guard(None), assumptions=assumptions, junction=policy)
     mps = measuring_points(setup)
     regime = case.regime if len(trains) == 2 else ("mb" if case.regime == "vc" else case.regime)
     scn = Scenario(setup.line, setup.net, trains, regime, step_length_s=dt, measuring_points=mps, record_period_s=1.0 if full else 3600.0,
-                   full_outputs=full, trace_speeds=True, driver=driver, seed=seed, additional_files=[additional])
+                   full_outputs=full, trace_speeds=True, driver=driver, seed=seed, additional_files=[additional], assumptions=assumptions,
+                   merge_orders=orders)
     res = simulate(scn, out)
     passages: dict[str, dict[str, float]] = {}
     for _, row in res.passages.iterrows():

@@ -18,7 +18,8 @@ from vcsumo.line import Line
 from vcsumo.plots.junction import plot_junction_regimes, plot_junction_sweep
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.control.guard import guaranteed_decel, strongest_decel
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
 from vcsumo.control.registry import parse_controller
 from vcsumo.studies.junction.metrics import actual_order, formation, run_metrics, signal_rows, speed_at_trace, trajectory_rows, unhindered
 from vcsumo.studies.junction.model import (ROLES, SIGNAL_VARIANTS, Case, RunResult, Setup, build_setup, resolve_junctions, signal_links, simulate_pair,
@@ -33,6 +34,7 @@ JUNCTION_COLUMNS = [
     "leader_speed_at_junction_mps", "follower_speed_at_junction_mps",
     "formation_start_m_before_merge", "vc_control_start_m_before_merge", "formed_m_after_merge", "formation_time_s",
     "formation_distance_m", "formed_gap_m", "formed_speed_mps", "formed_lost_time_s",
+    "merge_junction_min_offset_s", "merge_junction_headway_s", "merge_junction_throughput_trains_per_h", "merge_trunk_lost_s",
     "merge_min_offset_s", "merge_headway_s", "merge_throughput_trains_per_h",
     "split_min_offset_s", "split_headway_s", "split_throughput_trains_per_h", "split_is_bottleneck",
     "first_through_junction", "order_kept", "merging_service_delay_s", "merging_service_delay_end_s", "first_service_delay_end_s",
@@ -40,27 +42,62 @@ JUNCTION_COLUMNS = [
     "sumo_emergency_brakes", "sumo_emergency_warnings", "red_signal_stops",
     "merge_red_max_required_decel_mps2", "merge_red_inside_braking_s", "split_red_max_required_decel_mps2", "split_red_inside_braking_s",
     "max_overspeed_mps", "vc_guard_interventions", "vc_emergency_activations", "vc_supervisor_interventions", "junction_signal_caps",
-    "junction_signal_overruns", "speed_profile_caps", "simulations", "wall_time_s",
+    "junction_signal_overruns", "speed_profile_caps",
+    "healthy", "unhealthy_runs", "min_margin_m", "below_separation_time_s", "gap_violations_all_runs", "collisions_all_runs", "max_impact_kmh",
+    "stops_skipped", "overspeed_events", "overspeed_max_kmh", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops",
+    "sumo_emergency_brakings", "teleports", "assumptions", "simulations", "wall_time_s",
 ]
+
+HEALTH_SUMS = ("gap_violations", "collisions", "stops_skipped", "overspeed_events", "beyond_service_brakings", "authority_overruns",
+               "sumo_emergency_stops", "sumo_emergency_brakings", "teleports")
+"""Run-health counters summed over every simulation of a case (``<name>_all_runs`` for the two the
+row also gives for the Δ = 0 run)."""
+
+
+def case_health(summaries: list[dict]) -> dict:
+    """The run health of a case over all its simulations (sweep probes and analysis runs): healthy
+    only if every run was (:mod:`vcsumo.sim.health`), the smallest margin to the safe separation,
+    the counters summed and the largest excesses."""
+    out: dict = {"healthy": bool(summaries) and all(bool(x["healthy"]) for x in summaries),
+                 "unhealthy_runs": sum(int(not x["healthy"]) for x in summaries)}
+    margins = [x["min_margin_m"] for x in summaries if x.get("min_margin_m") is not None]
+    out["min_margin_m"] = round(min(margins), 2) if margins else math.nan
+    out["below_separation_time_s"] = round(sum(x["below_separation_time_s"] for x in summaries), 2)
+    for k in HEALTH_SUMS:
+        out[f"{k}_all_runs" if k in ("gap_violations", "collisions") else k] = int(sum(x[k] for x in summaries))
+    out["max_impact_kmh"] = max((x["max_impact_kmh"] for x in summaries), default=0.0)
+    out["overspeed_max_kmh"] = max((x["overspeed_max_kmh"] for x in summaries), default=0.0)
+    out["assumptions"] = summaries[0].get("assumptions", "") if summaries else ""
+    return out
 
 
 # -------------------------------------------------------------------------------------------
 # A case: sweep, bisection, analysis runs
 
 
-def _relative_braking_offset(setup: Setup, dt: float) -> float:
-    """Release interval a follower needs behind a leader at the common release point to keep the
-    relative braking distance of the VC guard there (gradients over the braking distance ahead) + 60 m, s."""
+def release_offset(setup: Setup, dt: float, model: SeparationModel, regime: str) -> float:
+    """Smallest release interval of two trains at the common release point (both at the release
+    speed) that keeps the regime's safe separation there from the first step, s: under VC the
+    relative-braking gap of the guard (dead time + the messages' age bound + 1.5 steps), under FBS
+    and MB the absolute one (stopping distance after the dead time + 1.5 steps; MB: a report period
+    of running more), each + margin and position errors + 10 m."""
     stock, v = setup.stock, setup.start_v["main"]
-    p = stock.params()
     if v <= 0.5:
         return 0.0
     s0 = setup.start_s["main"]
-    g_low, g_high = setup.profiles["main"].gradient_range(s0 - p.length_m, s0 + v * v / (2 * stock.service_brake_decel_mps2) + 10.0)
-    b_f = guaranteed_decel(p, v, stock.emergency_brake_decel_mps2, g_low)
-    a_l = strongest_decel(p, v, stock.emergency_brake_decel_mps2, g_high, 1.5)
-    gap = max(0.0, 1.5 * v * dt + v * v / (2 * b_f) - v * v / (2 * a_l)) + 60.0
-    return (gap + stock.length_m) / v
+    prof = setup.profiles["main"]
+    a = model.assumptions
+    if regime == "vc":
+        rule = RelativeBraking(model, stock, stock, prof)
+        dead = model.dead_time_s + a.t2t_delay_bound_s + 1.5 * dt
+        gap = model.vc_gap(stock, stock, v)
+        for _ in range(2):  # the leader's front where the gap puts it (its grades)
+            gap = rule.required_gap(s0, v, s0 + gap + stock.length_m, v, dead)
+    else:
+        gap = model.margin_m + RouteBraking(model, stock, prof).stopping_distance(s0, v, model.dead_time_s + 1.5 * dt)
+        if regime == "mb":
+            gap += v * a.position_report_period_s
+    return (gap + 10.0 + stock.length_m) / v
 
 
 @dataclass
@@ -79,7 +116,7 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
     solo_times = {r: solo[r].passages[setup.key[0].upper()][r] - solo[r].departures[r] for r in ROLES}
     d0 = 0.0
     if setup.merge is None:  # both start at the same point: the follower must fit behind the leader
-        d0 = math.ceil(_relative_braking_offset(setup, dt))
+        d0 = math.ceil(release_offset(setup, dt, SeparationModel(load_assumptions()), case.regime))
     cache: dict[float, tuple[dict, RunResult]] = {}
     count = [0]
 
@@ -96,7 +133,7 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
     grid = sorted({round(d0 + o, 2) for o in offsets})
     for o in grid:
         probe(o)
-    labels = ["merge"] if setup.merge is not None else []
+    labels = ["junction", "merge"] if setup.merge is not None else []
     if setup.split is not None:
         labels.append("split")
     mins: dict[str, float] = {}
@@ -135,7 +172,7 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
     runs: dict[str, RunResult] = {}
     analysis = {"simultaneous": grid[0]}
     for lab, v in mins.items():
-        if not math.isnan(v):
+        if not math.isnan(v) and lab != "junction":  # the junction's own offset: its probe is enough
             analysis[f"{lab}_min"] = v
     done: dict[float, RunResult] = {}
     for name, off in analysis.items():
@@ -171,7 +208,23 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
                 h = p[follower] - p[leader]
         row[f"{col}_headway_s"] = round(h, 2) if not math.isnan(h) else math.nan
         row[f"{col}_throughput_trains_per_h"] = round(3600.0 / h, 1) if h and not math.isnan(h) and h > 0 else math.nan
-    row["junction_throughput_trains_per_h"] = row[f"{row['junction_kind']}_throughput_trains_per_h"]
+    # the merge junction alone: the headway of the fronts at the junction node at the smallest offset
+    # from which both pass the junction unhindered; what the follower loses after it, forming up
+    # behind its leader on the trunk, is reported apart (merge_trunk_lost_s)
+    v = mins.get("junction", math.nan)
+    row["merge_junction_min_offset_s"] = round(v, 2) if not math.isnan(v) else math.nan
+    h = trunk = math.nan
+    if not math.isnan(v):
+        m_j, rr_j = cache[round(v, 2)]
+        p = rr_j.passages.get("M", {})
+        if leader in p and follower in p:
+            h = p[follower] - p[leader]
+        trunk = m_j["follower_lost_PM_s"] - m_j["follower_lost_M_s"]
+    row["merge_junction_headway_s"] = round(h, 2) if not math.isnan(h) else math.nan
+    row["merge_junction_throughput_trains_per_h"] = round(3600.0 / h, 1) if not math.isnan(h) and h > 0 else math.nan
+    row["merge_trunk_lost_s"] = round(trunk, 2) if math.isfinite(trunk) else math.nan
+    kind = row["junction_kind"]
+    row["junction_throughput_trains_per_h"] = row["merge_junction_throughput_trains_per_h" if kind == "merge" else "split_throughput_trains_per_h"]
     if setup.split is None:
         row["split_is_bottleneck"] = None
     elif setup.merge is None:
@@ -189,6 +242,7 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
               "split_red_max_required_decel_mps2", "split_red_inside_braking_s", "vc_guard_interventions", "vc_emergency_activations",
               "vc_supervisor_interventions", "junction_signal_caps", "junction_signal_overruns", "speed_profile_caps", "max_overspeed_mps"):
         row[k] = m0.get(k)
+    row.update(case_health([rr.summary for _, rr in cache.values()] + [rr.summary for rr in done.values()]))
     row["simulations"] = count[0]
     row["wall_time_s"] = round(time.perf_counter() - t_wall, 1)
     sweep = []
@@ -197,6 +251,9 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
         r = {"line": setup.line.name, "junction": setup.junction.id, "direction": setup.direction, "leader_service": leader, "regime": case.regime,
              "controller": case.controller or "", "junction_signal": case.variant or ""}
         r.update({k: (_r(v) if isinstance(v, float) else v) for k, v in m.items()})
+        r["healthy"] = bool(cache[off][1].summary["healthy"])
+        r["min_margin_m"] = cache[off][1].summary["min_margin_m"]
+        r["unhindered_junction"] = unhindered(m, "junction", tolerance_s, setup) if setup.merge is not None else None
         r["unhindered_merge"] = unhindered(m, "merge", tolerance_s, setup) if setup.merge is not None else None
         r["unhindered_split"] = unhindered(m, "split", tolerance_s, setup) if setup.split is not None else None
         sweep.append(r)
