@@ -59,7 +59,7 @@ LEADER_LOOKAHEAD_M = 30000.0
 def child_vcsumo(spec: dict, out: Path, end: str | None) -> dict:
     """Run the scenario with vcsumo's loop (as ``vcsumo run`` does) and return the figures."""
     c0 = time.process_time()
-    from vcsumo.cli.main import network
+    from vcsumo.cli.commands import network
     from vcsumo.network_file import load_line_or_network
     from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.sim.loop import Scenario, simulate

@@ -414,8 +414,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if required is not None:
                     sec, km_v = tr.plan.profile.km_at(s_now)  # the gap just fell below the safe separation
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))
-                # a standing train is left to SUMO (commanding it to move would abort its stop); the cap takes it from the step it moves
-                if perm is not None and perm.speed_mps < speed + 2.0 and not (speed < 0.01 and perm.speed_mps > 0.0):
+                # a train standing at its stop is left to SUMO (commanding it to move would abort the stop); the cap
+                # takes it from the step it moves (one standing elsewhere stays capped: SUMO would start it past its curve)
+                if perm is not None and perm.speed_mps < speed + 2.0 and not (speed < 0.01 and perm.speed_mps > 0.0 and sim.at_stop(vid)):
                     caps[vid] = perm.speed_mps
             c = clock()
             cpu["health"] += c - c_mark

@@ -338,6 +338,11 @@ class SumoBackend:
         self._ls.vehicle.setSpeed(vid, -1)
 
     @_traci
+    def at_stop(self, vid: str) -> bool:
+        """The train stands at one of its stops (SUMO holds it there for its dwell)."""
+        return bool(self._ls.vehicle.getStopState(vid) & 1)
+
+    @_traci
     def resume(self, vid: str) -> None:
         """End a train's current stop (its dwell) if it is standing at one."""
         if self._ls.vehicle.getStopState(vid) & 1:

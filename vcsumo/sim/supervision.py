@@ -19,8 +19,8 @@ would run faster.  Targets:
   constant creep carries the train past its stopping point at 0.1 s steps: all seen on the graded
   regional line);
 * the end of its route where it has to stop there: the end of the track (less the position
-  error, after the dead time), or an open end of the network, where SUMO ends the trip with a
-  stop (served like a scheduled stop);
+  error, after the dead time), also at an open end of the network, where SUMO ends the trip with
+  a stop whose window takes the train held short of the end (``timetable.routes_xml``);
 * its **end of movement authority** — a merging junction it has to wait at
   (:mod:`vcsumo.sim.interlocking`), and the regime's: FBS — the last signal at least ``overlap_m``
   behind the rear of the train ahead (ETCS L2 with overlap); MB — the rear of the train ahead as
@@ -121,12 +121,10 @@ class BrakingCurveSupervisor:
             if t.final_stop is not None:
                 stops.append(t.final_stop.s_m)
             end_s = None
-            if t.final_stop is None and t.stop_at_end and t.end_pos_m is not None:
-                # an open end of the network: SUMO ends the trip with a stop there (timetable.routes_xml),
-                # which the train must reach like any stop (held 10 m short of it, it would never arrive)
-                stops.append(float(t.profile.starts_m[-1] + t.end_pos_m))
-            elif t.final_stop is None and t.stop_at_end:
-                end_s = t.profile.length_m  # the end of the track
+            if t.final_stop is None and t.stop_at_end:
+                # the end of the track; at an open end of the network SUMO ends the trip with a stop whose
+                # window takes the train held short of it by this rule (timetable.routes_xml)
+                end_s = t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m)
             try:  # the trains' braking under the absolute rule (``braking``: already built, e.g. the health monitor's)
                 braking = (braking_of or {}).get(t.id) or shared.get((id(t.stock), id(t.profile))) \
                     or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile, kind))
