@@ -330,6 +330,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             c_mark = c
             # ---------------------------------------------------------------- health
             caps: dict[str, float] = {}
+            held: dict[str, float] = {}  # trains standing at their stop, left to SUMO: their permitted speed
             for i, (vid, tr, s_now, speed, accel, _e, lead, gap, controlled) in enumerate(rows):
                 perm = perms[i]
                 coupled = lead is not None and controlled and lead[0] in obs  # relative braking behind the train ahead
@@ -340,8 +341,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))
                 # a train standing at its stop is left to SUMO (commanding it to move would abort the stop); the cap
                 # takes it from the step it moves (one standing elsewhere stays capped: SUMO would start it past its curve)
-                if perm is not None and perm.speed_mps < speed + 2.0 and not (speed < 0.01 and perm.speed_mps > 0.0 and sim.at_stop(vid)):
-                    caps[vid] = perm.speed_mps
+                if perm is not None and perm.speed_mps < speed + 2.0:
+                    if speed < 0.01 and perm.speed_mps > 0.0 and sim.at_stop(vid):
+                        held[vid] = perm.speed_mps
+                    else:
+                        caps[vid] = perm.speed_mps
             c = clock()
             cpu["health"] += c - c_mark
             c_mark = c
@@ -408,6 +412,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 timing["controller_s"] += time.perf_counter() - t0
                 for vid in driver.stop_releases():
                     sim.resume(vid)
+                    if vid in held:  # off its stop now: its curve holds from this step (SUMO would start it at full acceleration)
+                        sim.set_speed(vid, held[vid])
+                        capped.add(vid)
                 for vid, v_cmd in commands.items():
                     tr = state.get(vid)
                     if tr is None:
