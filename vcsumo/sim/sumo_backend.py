@@ -27,6 +27,7 @@ import math
 from bisect import bisect_left, insort
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from vcsumo.errors import SumoError
 from vcsumo.sim.sumo_paths import sumo_binary, sumo_home
@@ -71,11 +72,13 @@ def _traci(fn):
 class SumoBackend:
     """A running SUMO simulation (libsumo), used as ``with SumoBackend(args) as sim: ...``.
 
-    ``label`` names the run in error messages (e.g. the scenario and network files).
+    ``label`` names the run in error messages (e.g. the scenario and network files); ``on_failure``
+    is called with the time of the last step completed when the run ends by an exception.
     """
 
-    def __init__(self, args: list[str], error_log: Path | None = None, label: str = ""):
+    def __init__(self, args: list[str], error_log: Path | None = None, label: str = "", on_failure: Callable[[float], None] | None = None):
         self.args = list(args)
+        self.on_failure = on_failure
         self.error_log = error_log
         self.label = label
         self._ls = None
@@ -90,7 +93,9 @@ class SumoBackend:
         self.start()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is not None and self.on_failure is not None and not math.isnan(self._time):
+            self.on_failure(self._time)  # where the run stopped (before the error ends it)
         self.close()
 
     def start(self) -> None:
