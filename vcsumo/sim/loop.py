@@ -220,6 +220,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     driver = scn.driver
     if driver is not None and scn.full_outputs and hasattr(driver, "stream_records"):
         driver.stream_records(out)  # the driver's per-step records go to disk as the run goes
+    stop_releases = getattr(driver, "stop_releases", lambda: ())  # a driver that never ends a stop need not say so
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
     capped: set[str] = set()
@@ -411,7 +412,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                             ends[r[0]] = d_ma
                 commands = driver.make_step(Snapshot(t, dt, snap, ends))
                 timing["controller_s"] += time.perf_counter() - t0
-                for vid in driver.stop_releases():
+                for vid in stop_releases():
                     sim.resume(vid)
                     if vid in held:  # off its stop now: its curve holds from this step (SUMO would start it at full acceleration)
                         sim.set_speed(vid, held[vid])
