@@ -262,7 +262,7 @@ def test_replaying_a_results_folder_in_sumo_keeps_the_recorded_outputs(in_tmp, c
     from vcsumo.sim.sumo_paths import sumo_binary
 
     assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "mb", "--out", "r"]) == 0
-    recorded = ("fcd.xml", "tripinfo.xml", "stops.xml", "sumo_messages.log")
+    recorded = ("tripinfo.xml", "stops.xml", "sumo_messages.log", "railsignal_vehicles.xml")
     digest = {f: hashlib.sha256((in_tmp / "r" / f).read_bytes()).hexdigest() for f in recorded}
     proc = subprocess.run([sumo_binary("sumo"), "-c", "scenario.sumocfg"], cwd=in_tmp / "r", capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr

@@ -102,7 +102,7 @@ def run(cfg: RunConfig) -> None:
     with ResultsFolder(out, inputs=inputs, seed=cfg.seed, params=params) as rf:
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {cfg.regime}") as upd:
             scn = Scenario(line, net, trains, cfg.regime, step_length_s=cfg.step_s, seed=cfg.seed, driver=driver, end_time_s=cfg.end_time,
-                           assumptions=inp.assumptions)
+                           assumptions=inp.assumptions, sumo_fcd=cfg.sumo_fcd)
             res = simulate(scn, rf.path, upd)
         log.info("SUMO's messages: %s, %s", out / "sumo_messages.log", out / "sumo_errors.log")
         infra = write_infrastructure(net.topology, rf.path)

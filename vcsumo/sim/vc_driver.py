@@ -47,12 +47,12 @@ e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part reads ``controller
 from __future__ import annotations
 
 import math
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
@@ -68,6 +68,7 @@ from vcsumo.running_time import unhindered_run
 from vcsumo.sim.convoy_plan import MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, load_channel
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
+from vcsumo.sim.records import VC_RECORD_COLUMNS, VC_RECORD_FLOATS, CsvStream, RunningStats
 from vcsumo.timetable import PlannedTrain, TimetableFile
 
 # -------------------------------------------------------------------------------------------
@@ -137,7 +138,8 @@ class _Follower:
     emergency_episodes: int = 0
     in_emergency: bool = False
     interventions: int = 0
-    solve_ms: list[float] = field(default_factory=list)
+    solve_ms: RunningStats = field(default_factory=RunningStats)
+    """The stack's CPU time per step, ms (running statistics: no per-step list)."""
     modes: dict[str, int] = field(default_factory=dict)
     coupled_since_s: float = math.nan
     released_at_s: float = math.nan
@@ -188,7 +190,7 @@ class VCDriver:
         self.followers: dict[str, _Follower] = {}
         self.record_every_s = record_every_s
         self._next_record = -math.inf
-        self.records: list[dict] = []
+        self._records, self._streaming = CsvStream(Path("vc_followers.csv"), VC_RECORD_COLUMNS, VC_RECORD_FLOATS, chunk_rows=1 << 62), False
         for members in convoys:
             ids = tuple(m.id for m in members)
             for m in members:
@@ -200,6 +202,8 @@ class VCDriver:
                 stack = build_follower_stack(controller, StackContext(
                     ego=ego.stock, predecessor=pred.stock, step_s=step_s, profile=ego.profile, supervisor_params=cbf_config, guard=self.guard,
                     ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions))
+                if getattr(stack.supervisor, "record", None):
+                    stack.supervisor.record = False  # its barrier history is read by no output of a SUMO run (the records carry the barrier)
                 frames = {}
                 for other in members:
                     if other.id != ego.id:
@@ -225,9 +229,10 @@ class VCDriver:
     # -----------------------------------------------------------------------------------
     def _send(self, snap: Snapshot) -> None:
         t = snap.time_s
-        for tid, st in snap.trains.items():
+        for tid in snap.trains:
             if tid not in self.convoy_of or not self.channel.due(tid, t):
                 continue
+            st = snap.trains[tid]
             plan = self.trains[tid]
             f = self.followers.get(tid)
             times = pos = spd = frc = None
@@ -285,12 +290,14 @@ class VCDriver:
         record = t >= self._next_record - 1e-9
         if record:
             self._next_record = t + self.record_every_s
+        self.channel.advance(t)  # what is due arrives whether or not its receiver runs
+        trains = snap.trains
         for fid, f in self.followers.items():
-            st = snap.trains.get(fid)
-            pst = snap.trains.get(f.pred.id)
-            received = self.channel.deliver(fid, t)
-            if st is None:
+            if fid not in trains:
                 continue
+            st = trains[fid]
+            pst = trains.get(f.pred.id)
+            received = self.channel.deliver(fid, t)
             fr = f.frames.get(f.pred.id)
             if not f.linked and pst is not None and fr is not None:
                 # the link is up when a convoy starts (its members formed it standing, or were released formed):
@@ -363,7 +370,7 @@ class VCDriver:
             t0 = time.perf_counter()
             cmd = f.stack.make_step(obs)  # controller -> supervisor -> separation guard, with fault handling
             f.interventions = f.stage.supervisor_interventions
-            f.solve_ms.append(1000.0 * (time.perf_counter() - t0))
+            f.solve_ms.add(1000.0 * (time.perf_counter() - t0))
             f.last_cmd = cmd
             f.steps += 1
             f.infeasible += int(cmd.infeasible)
@@ -391,14 +398,11 @@ class VCDriver:
                 m = received.get(f.pred.id)
                 if m is not None:
                     gap_comm = m.state.position_m - m.length_m - st.s_m
-                self.records.append({
-                    "time_s": t, "train": fid, "predecessor": f.pred.id, "km": st.km, "speed_mps": st.speed_mps,
-                    "predecessor_speed_mps": pst.speed_mps, "gap_m": (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m,
-                    "sensed_gap_m": sensed_gap, "communicated_gap_m": gap_comm, "force_n": cmd.force_n, "mode": cmd.mode,
-                    "emergency": cmd.emergency, "infeasible": cmd.infeasible,
-                    "barrier_true_m": cmd.info.get("cbf_true_barrier_m"), "barrier_robust_m": cmd.info.get("cbf_robust_barrier_m"),
-                    "speed_nominal_mps": v_nominal, "speed_guard_mps": v_guard, "speed_command_mps": v_next,
-                })
+                self._records.append((
+                    t, fid, f.pred.id, st.km, st.speed_mps, pst.speed_mps, (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m,
+                    sensed_gap, gap_comm, cmd.force_n, cmd.mode, cmd.emergency, cmd.infeasible,
+                    cmd.info.get("cbf_true_barrier_m"), cmd.info.get("cbf_robust_barrier_m"), v_nominal, v_guard, v_next,
+                ))
         if self.junction is not None:
             commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands
@@ -418,17 +422,28 @@ class VCDriver:
         f = self.followers.get(train_id)
         return f.d_min if f is not None else 50.0
 
+    @property
+    def records(self) -> list[dict]:
+        """The follower records held in memory (all unless :meth:`stream_records` sent them to disk)."""
+        return [dict(zip(VC_RECORD_COLUMNS, r)) for r in self._records.rows]
+
+    def stream_records(self, out: Path) -> None:
+        """Write the records to ``out``/vc_followers.csv in chunks during the run (bounded memory)."""
+        self._records, self._streaming = CsvStream(Path(out) / "vc_followers.csv", VC_RECORD_COLUMNS, VC_RECORD_FLOATS), True
+
     def summary(self) -> dict:
         fs = list(self.followers.values())
-        solve = np.concatenate([np.asarray(f.solve_ms) for f in fs]) if fs and any(f.solve_ms for f in fs) else np.array([])
+        solve = RunningStats()
+        for f in fs:
+            solve = solve.merge(f.solve_ms)
         return {
             "controller": self.name + (f":{self.params_spec}" if self.params_spec else ""), "convoy_followers": len(fs),
             "coupled_steps": int(sum(f.steps for f in fs)), "controller_infeasible_steps": int(sum(f.infeasible for f in fs)),
             "vc_emergency_activations": int(sum(f.emergency_episodes for f in fs)), "vc_emergency_steps": int(sum(f.emergency_steps for f in fs)),
             "supervisor_interventions": int(sum(f.interventions for f in fs)),
             "guard_interventions": int(sum(f.guard_interventions for f in fs)),
-            "controller_step_median_ms": float(np.median(solve)) if solve.size else None,
-            "controller_step_p99_ms": float(np.percentile(solve, 99)) if solve.size else None,
+            "controller_step_median_ms": solve.quantile(0.5) if solve.count else None,
+            "controller_step_p99_ms": solve.quantile(0.99) if solve.count else None,
             "channel_sent": self.channel.sent, "channel_lost": self.channel.lost,
             "fault_events": len(self.fault_events()), "fault_emergency_steps": int(sum(f.stage.emergency_steps for f in fs)),
             **{f"fault_events_{k}": int(sum(f.stage.counts()[k] for f in fs)) for k in FAULT_KINDS},
@@ -440,7 +455,12 @@ class VCDriver:
 
     def write_report(self, out: Path) -> None:
         """``vc_followers.csv`` (per follower step records), ``faults.csv`` (fault events) and ``vc_summary.json``."""
-        pd.DataFrame(self.records).to_csv(out / "vc_followers.csv", index=False)
+        if not self._streaming:
+            self._records.frame().to_csv(out / "vc_followers.csv", index=False)
+        else:
+            self._records.close()
+            if self._records.path.resolve() != (Path(out) / "vc_followers.csv").resolve():
+                shutil.copyfile(self._records.path, Path(out) / "vc_followers.csv")
         faults_frame(self.fault_events()).to_csv(out / "faults.csv", index=False)
         per = []
         for fid, f in self.followers.items():
