@@ -155,7 +155,8 @@ def test_health_counters_are_those_of_evaluating_every_step(line_factory, networ
 def test_running_trains_and_the_train_ahead_are_sumos(tmp_path, line_factory, network_factory, line, timetable, beyond):
     """The running list kept from departures and arrivals is SUMO's own at every step, and the train
     ahead found from the route's edges is the one a driving distance to every other train finds."""
-    from vcsumo.sim.sumo_backend import RouteLeaders, SumoBackend, sumo_args
+    from vcsumo.sim.route_leaders import RouteLeaders
+    from vcsumo.sim.sumo_backend import SumoBackend, sumo_args
     from vcsumo.timetable import routes_xml
 
     ln, net, trains = _trains(line_factory, network_factory, line, timetable)

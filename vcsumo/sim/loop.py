@@ -50,7 +50,8 @@ from vcsumo.sim.snapshot import Driver, Snapshot, StepTrains, TrainState  # noqa
 from vcsumo.sim.run_results import TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, SimulationResult, collect_results
 from vcsumo.sim.interlocking import MergeLocking
 from vcsumo.sim.supervision import BrakingCurveSupervisor
-from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, RouteLeaders, SumoBackend, sumo_args
+from vcsumo.sim.route_leaders import RouteLeaders
+from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
 from vcsumo.sim.sumo_io import write_sumocfg
 from vcsumo.timetable import PlannedTrain, routes_xml
 
