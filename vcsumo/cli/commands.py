@@ -123,6 +123,11 @@ def run(cfg: RunConfig) -> None:
     gap_text = f"{gap:.1f} m" if isinstance(gap, (int, float)) and math.isfinite(gap) else "– (no train ran behind another)"
     out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {gap_text}, "
                       f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
+    if driver is not None:
+        loose = {fid: f.formation.reason() for fid, f in driver.followers.items() if f.formation.reason()}
+        text = "; ".join(f"{fid}: {why}" for fid, why in sorted(loose.items())[:6]) + (" …" if len(loose) > 6 else "")
+        out_console.print(f"convoy followers formed {s.get('followers_formed', 0)}/{len(driver.followers)}"
+                          + (f" — not formed: {text} (vc_summary.json)" if loose else ""))
     out_console.print(f"wrote {out}")
     reasons = unhealthy_reasons(s, cut_short=cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s)
     if reasons:

@@ -65,6 +65,7 @@ from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
+from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
 from vcsumo.sim.convoy_plan import MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, load_channel
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
@@ -154,6 +155,7 @@ class _Follower:
     braking: RouteBraking | None = None
     """The follower's guaranteed braking on its route under the absolute rule (stop hand-over)."""
     stood_since_s: float = math.nan
+    formation: Formation = field(default_factory=Formation)
     """Since when it stands at a shared stop behind its predecessor, s."""
 
     @property
@@ -398,8 +400,13 @@ class VCDriver:
                 m = received.get(f.pred.id)
                 if m is not None:
                     gap_comm = m.state.position_m - m.length_m - st.s_m
+                gap = (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m
+                if st.speed_mps >= MOVING_MPS:
+                    plan = self.trains[fid]
+                    f.formation.update(t, self.record_every_s, st.speed_mps, gap, self.coupled_spacing_m(fid, st.speed_mps, st.s_m),
+                                       plan.profile.speed_limit_train(st.s_m, plan.stock.length_m), v_nominal, v_guard)
                 self._records.append((
-                    t, fid, f.pred.id, st.km, st.speed_mps, pst.speed_mps, (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m,
+                    t, fid, f.pred.id, st.km, st.speed_mps, pst.speed_mps, gap,
                     sensed_gap, gap_comm, cmd.force_n, cmd.mode, cmd.emergency, cmd.infeasible,
                     cmd.info.get("cbf_true_barrier_m"), cmd.info.get("cbf_robust_barrier_m"), v_nominal, v_guard, v_next,
                 ))
@@ -407,11 +414,12 @@ class VCDriver:
             commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands
 
-    def coupled_spacing_m(self, train_id: str, v_mps: float) -> float:
-        """The spacing a follower's stack keeps behind its predecessor at a common speed v: its
-        controller's coupled gap, at least its minimum safe gap (with a CBF: the safety distance d), m."""
+    def coupled_spacing_m(self, train_id: str, v_mps: float, position_m: float | None = None) -> float:
+        """The spacing a follower's stack keeps behind its predecessor at a common speed v (with its
+        front at ``position_m`` on its route: on the gradients there): its controller's coupled gap,
+        at least its minimum safe gap (with a CBF: the safety distance d), m."""
         f = self.followers[train_id]
-        return max(f.stack.coupled_gap_m(v_mps), f.d_min)
+        return max(f.stack.coupled_gap_m(v_mps, position_m), f.d_min)
 
     # -----------------------------------------------------------------------------------
     def predecessor_of(self, train_id: str) -> str | None:
@@ -444,6 +452,8 @@ class VCDriver:
             "guard_interventions": int(sum(f.guard_interventions for f in fs)),
             "controller_step_median_ms": solve.quantile(0.5) if solve.count else None,
             "controller_step_p99_ms": solve.quantile(0.99) if solve.count else None,
+            "followers_formed": sum(1 for f in fs if f.formation.running_s > 0 and not f.formation.reason()),
+            "followers_not_formed": sum(1 for f in fs if f.formation.reason()),
             "channel_sent": self.channel.sent, "channel_lost": self.channel.lost,
             "fault_events": len(self.fault_events()), "fault_emergency_steps": int(sum(f.stage.emergency_steps for f in fs)),
             **{f"fault_events_{k}": int(sum(f.stage.counts()[k] for f in fs)) for k in FAULT_KINDS},
@@ -467,7 +477,7 @@ class VCDriver:
             per.append({"train": fid, "predecessor": f.pred.id, "coupled_steps": f.steps, "infeasible_steps": f.infeasible, "stop_handovers": f.stop_handovers,
                         "emergency_activations": f.emergency_episodes, "supervisor_interventions": f.interventions, "guard_interventions": f.guard_interventions,
                         "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes,
-                        "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps})
+                        "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps, **f.formation.row()})
         write_json(out / "vc_summary.json", {"summary": self.summary(), "followers": per})
 
 
