@@ -21,12 +21,13 @@ def test_standing_and_starting_trains_are_not_judged():
 
 
 def test_the_dominant_cause_is_named():
-    at_limit, held, other = Formation(), Formation(), Formation()
+    at_limit, traction, held, other = Formation(), Formation(), Formation(), Formation()
     for k in range(10):
         at_limit.update(k, 1.0, 44.3, 800.0, 440.0, 44.4, 44.3, 44.3)  # at the line speed, 360 m too far behind
+        traction.update(k, 1.0, 23.3, 400.0, 217.0, 27.8, 23.4, 23.4, at_full_traction=True)  # felez_test down: power-limited
         held.update(k, 1.0, 30.0, 800.0, 440.0, 44.4, 31.0, 29.0)  # the guard commanded less than the controller
         other.update(k, 1.0, 30.0, 800.0, 440.0, 44.4, 31.0, 31.0)
-    assert [f.reason() for f in (at_limit, held, other)] == list(REASONS)
+    assert [f.reason() for f in (at_limit, traction, held, other)] == list(REASONS)
     assert at_limit.max_excess_m == 360.0 and math.isnan(at_limit.formed_at_s) and at_limit.formed_share == 0.0
     row = held.row()
-    assert row["not_formed_reason"] == REASONS[1] and row["formed_at_s"] is None and row["running_coupled_s"] == 10.0
+    assert row["not_formed_reason"] == REASONS[2] and row["formed_at_s"] is None and row["running_coupled_s"] == 10.0

@@ -7,6 +7,8 @@ Time it runs farther behind is put down to one cause, checked in this order:
 * ``at the line's permitted speed`` — it already runs at the limit under its whole train (equal
   trains at the same line speed cannot close a gap opened behind a speed restriction, a station or
   a descent);
+* ``at full traction`` — its controller asks for all the traction the train has (a leader of the
+  same type running at its own performance limit, e.g. power-limited on a climb, cannot be caught);
 * ``held by the separation guard`` — the guard commanded less than the controller asked;
 * ``the controller did not close it`` — otherwise (its own dynamics, a gap reference above the
   spacing, a lossy channel).
@@ -28,7 +30,7 @@ MOVING_MPS = 5.0
 AT_LIMIT_MPS = 0.5
 """A follower within this of its permitted line speed runs at the limit, m/s."""
 
-REASONS = ("at the line's permitted speed", "held by the separation guard", "the controller did not close it")
+REASONS = ("at the line's permitted speed", "at full traction", "held by the separation guard", "the controller did not close it")
 
 
 @dataclass
@@ -39,13 +41,15 @@ class Formation:
     running_s: float = 0.0
     formed_s: float = 0.0
     at_limit_s: float = 0.0
+    traction_s: float = 0.0
     held_s: float = 0.0
     other_s: float = 0.0
     max_excess_m: float = 0.0
 
     def update(self, time_s: float, dt_s: float, speed_mps: float, gap_m: float, spacing_m: float, limit_mps: float,
-               nominal_speed_mps: float, guard_speed_mps: float) -> None:
-        """One sample every ``dt_s`` of a coupled follower."""
+               nominal_speed_mps: float, guard_speed_mps: float, at_full_traction: bool = False) -> None:
+        """One sample every ``dt_s`` of a coupled follower (``at_full_traction``: its controller asks
+        for the most traction force the train has at this speed)."""
         if speed_mps < MOVING_MPS or not math.isfinite(gap_m):
             return
         self.running_s += dt_s
@@ -57,6 +61,8 @@ class Formation:
         self.max_excess_m = max(self.max_excess_m, gap_m - spacing_m)
         if speed_mps >= limit_mps - AT_LIMIT_MPS:
             self.at_limit_s += dt_s
+        elif at_full_traction:
+            self.traction_s += dt_s
         elif math.isfinite(guard_speed_mps) and guard_speed_mps < nominal_speed_mps - 0.01:
             self.held_s += dt_s
         else:
@@ -72,8 +78,8 @@ class Formation:
             return "never ran coupled above 5 m/s"
         if self.formed_share >= 0.5:
             return ""
-        times = (self.at_limit_s, self.held_s, self.other_s)
-        return REASONS[max(range(3), key=lambda k: times[k])]
+        times = (self.at_limit_s, self.traction_s, self.held_s, self.other_s)
+        return REASONS[max(range(len(times)), key=lambda k: times[k])]
 
     def row(self) -> dict:
         share = self.formed_share
