@@ -17,7 +17,8 @@ import numpy as np
 
 from vcsumo.control.base import Command, Observation
 from vcsumo.control.channel import ChannelConfig
-from vcsumo.control.consensus import ConsensusController, cbc_params_for, delay_margin_s, load_cbc_params
+from vcsumo.control.consensus import ConsensusController, cbc_params_for, load_cbc_params
+from vcsumo.control.consensus_stability import delay_margin_s
 from vcsumo.sim.offline import SpeedProfile, simulate_convoy
 
 

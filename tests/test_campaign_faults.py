@@ -99,11 +99,11 @@ def test_a_killed_capacity_study_resumes_only_its_missing_cases(tmp_path):
         proc.kill()
     stale = partials(out)
     assert stale and not (out / "capacity.csv").exists()
-    before = pd.read_csv(out / "capacity_cases.csv")
+    before = pd.read_csv(out / "capacity_cases.csv", dtype=str, keep_default_na=False)  # the cells as written
     assert 1 <= len(before) < 4  # of fbs, mb, vc n=2, vc n=3 (vc n=1 repeats mb)
     assert main([*CAPACITY, "--workers", "2", "--out", str(out)]) == 0
     assert not partials(out)
-    cases = pd.read_csv(out / "capacity_cases.csv")
+    cases = pd.read_csv(out / "capacity_cases.csv", dtype=str, keep_default_na=False)
     assert len(cases) == 4 and cases.case_key.is_unique
     # the rows found finished are not run again
     pd.testing.assert_frame_equal(cases.iloc[: len(before)].reset_index(drop=True), before)
@@ -262,7 +262,7 @@ def test_replaying_a_results_folder_in_sumo_keeps_the_recorded_outputs(in_tmp, c
     from vcsumo.sim.sumo_paths import sumo_binary
 
     assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "mb", "--out", "r"]) == 0
-    recorded = ("fcd.xml", "tripinfo.xml", "stops.xml", "sumo_messages.log")
+    recorded = ("tripinfo.xml", "stops.xml", "sumo_messages.log", "railsignal_vehicles.xml")
     digest = {f: hashlib.sha256((in_tmp / "r" / f).read_bytes()).hexdigest() for f in recorded}
     proc = subprocess.run([sumo_binary("sumo"), "-c", "scenario.sumocfg"], cwd=in_tmp / "r", capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr

@@ -1,6 +1,7 @@
 """Tier 2/3 — capacity study: FBS < MB < VC, simulation vs blocking-time theory, study files."""
 
 import json
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -43,6 +44,17 @@ def test_capacity_ordering_and_safety(felez_capacity):
     assert df[df.regime == "fbs"].gain_vs_fbs.iloc[0] == 1.0
     vc = df[(df.regime == "vc") & (df.convoy_size > 1)]
     assert (vc.intra_convoy_gap_m > 0).all() and (vc.min_gap_m > 0).all()
+    # on a level line released at line speed the followers keep the model's coupled gap: formed convoys
+    assert vc.convoy_formed.astype(bool).all(), vc[["convoy_size", "intra_convoy_gap_m", "coupled_gap_model_m"]]
+    assert df.healthy.astype(bool).all()
+
+
+def test_a_convoy_is_formed_within_a_tenth_and_ten_metres_of_the_coupled_gap():
+    from vcsumo.studies.capacity import convoy_formed
+
+    assert convoy_formed(230.0, 230.6) is True and convoy_formed(1.1 * 230.6 + 10.0, 230.6) is True
+    assert convoy_formed(411.7, 230.6) is False  # regional_graded: a follower released in an 80 km/h stretch
+    assert math.isnan(convoy_formed(float("nan"), 230.6)) and math.isnan(convoy_formed(200.0, None))
 
 
 def test_capacity_simulation_agrees_with_blocking_time_theory(felez_capacity):

@@ -18,9 +18,10 @@ pytestmark = pytest.mark.sumo
 def test_run_writes_a_complete_results_folder(in_tmp, capsys):
     assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "mb", "--out", "r"]) == 0
     out = Path("r")
-    for f in ("trajectories.csv", "stop_events.csv", "summary.csv", "summary.json", "meta.json", "fcd.xml", "tripinfo.xml",
+    for f in ("trajectories.csv", "stop_events.csv", "summary.csv", "summary.json", "meta.json", "tripinfo.xml",
               "stops.xml", "scenario.sumocfg", "routes.rou.xml", "network/line.net.xml", "time_distance.png"):
         assert (out / f).is_file(), f
+    assert not (out / "fcd.xml").exists()  # the same samples as trajectories.csv: only on request (--sumo-fcd)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["trains_arrived"] == 3 and summary["collisions"] == 0 and summary["gap_violations"] == 0
     traj = pd.read_csv(out / "trajectories.csv")

@@ -20,12 +20,14 @@ from vcsumo.control.consensus import (
     ConsensusController,
     acceleration_envelope,
     cbc_params_for,
+    force_for_acceleration,
+    load_cbc_params,
+)
+from vcsumo.control.consensus_stability import (
     closed_loop_poles,
     closed_loop_stable,
     delay_margin_s,
-    force_for_acceleration,
     leader_response,
-    load_cbc_params,
     string_gain,
     string_gain_peak,
     string_gain_response,

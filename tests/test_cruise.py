@@ -16,7 +16,7 @@ from vcsumo.control.cruise import (
     PositionReferenceGenerator,
     SwitchedCruiseController,
     Weights,
-    _QPSolver,
+    DenseQP,
     box_qp,
     load_cruise_config,
 )
@@ -37,7 +37,7 @@ def stocks():
 def test_box_qp_is_optimal():
     """The active-set box QP agrees with DAQP and satisfies the KKT conditions."""
     rng = np.random.default_rng(0)
-    qp = _QPSolver(12, 12)
+    qp = DenseQP(12, 12)
     for _ in range(150):
         M = rng.normal(size=(12, 12))
         H = M @ M.T + 0.1 * np.eye(12)

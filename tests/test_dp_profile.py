@@ -5,15 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vcsumo.control.dp_profile import (
-    DPSettings,
-    RouteLookup,
-    discrete_braking_curves,
-    dp_speed_profile,
-    route_profile_from_arrays,
-    straight_route_profile,
-    terminal_set,
-)
+from vcsumo.control.dp_profile import DPSettings, dp_speed_profile
+from vcsumo.control.mpc_terminal import discrete_braking_curves, terminal_set
+from vcsumo.control.route_lookup import RouteLookup, route_profile_from_arrays, straight_route_profile
 from vcsumo.control.predictors import model_step
 from vcsumo.dynamics import balance_speed, brake_force_limit, gradient_force, running_resistance, traction_limit
 from vcsumo.rolling_stock import load_rolling_stock

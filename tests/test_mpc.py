@@ -9,7 +9,7 @@ import pytest
 
 from vcsumo.config import load_model
 from vcsumo.control.base import Message, Observation, TrainStateMsg
-from vcsumo.control.dp_profile import RouteLookup, route_profile_from_arrays, straight_route_profile
+from vcsumo.control.route_lookup import RouteLookup, route_profile_from_arrays, straight_route_profile
 from vcsumo.control.mpc import FollowerMPC, LeaderMPC, MPCSettings, fallback_force, load_mpc_settings
 from vcsumo.control.predictors import (
     LeaderPrediction,

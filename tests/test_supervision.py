@@ -11,7 +11,7 @@ from vcsumo.line import load_line
 from vcsumo.sim.loop import Scenario, simulate
 from vcsumo.sim.network import build_network
 from vcsumo.signalling.assumptions import load_assumptions
-from vcsumo.timetable import load_timetable, plan_trains
+from vcsumo.timetable import END_OF_TRACK_WINDOW_M, load_timetable, plan_trains
 
 from .conftest import write
 
@@ -43,6 +43,35 @@ def test_graded_line_every_stop_served_and_healthy(regional, regime, tmp_path):
     # every train at or below its permitted speed (+ tolerance) at every recorded second
     tr = res.trajectories
     assert len(tr) > 1000 and (res.trains.overspeed_max_kmh == 0).all()
+
+
+OPEN_ENDS = """
+name: open_ends
+line: regional_graded
+services:
+  - {id: OUT, train: regional_emu160, origin: ALD, destination: end, departure: "06:00"}
+  - {id: IN, train: regional_emu160, origin: end, destination: ALD, departure: "06:00"}
+  - {id: HILL, train: regional_emu160, origin: ALD, destination: "branch:hill", departure: "06:04"}
+"""
+
+
+@pytest.mark.parametrize("regime", ["fbs", "mb"])
+def test_trains_to_an_open_end_arrive_there(line_factory, network_factory, regime, tmp_path):
+    """A train whose route ends at an open end of the network ends its trip with a stop SUMO serves
+    there: the supervision holds it short of the end by the end-of-track rule and the stop's window
+    takes it there (else it would stand for ever and every train behind it too); it leaves the network."""
+    line = line_factory("regional_graded")
+    net = network_factory("regional_graded")
+    tt, path = load_timetable(write(tmp_path / "open.yaml", OPEN_ENDS), line)
+    trains = plan_trains(tt, path, line, net.topology, dt=0.5)
+    res = simulate(Scenario(line, net, trains, regime, step_length_s=0.5), tmp_path / regime)
+    s = res.summary
+    assert s["trains_arrived"] == 3 and s["healthy"], {k: s[k] for k in HEALTH}
+    by = res.trains.set_index("train")
+    for t in trains:
+        if t.final_stop is None:  # it ran to the end of its route: the route length SUMO reports
+            end = t.profile.starts_m[-1] + t.end_pos_m - t.start_s_m
+            assert end - max(t.stock.length_m, END_OF_TRACK_WINDOW_M) - 1.0 <= by.loc[t.id, "route_length_m"] <= end + 1.0
 
 
 def test_sumo_alone_skips_stops_and_the_counters_fire(regional, tmp_path):
@@ -94,3 +123,28 @@ def test_moving_block_follower_stops_behind_a_train_standing_on_a_descent(tmp_pa
     # safe separation, and both are counted
     alone = simulate(Scenario(line, net, trains, "mb", supervise=False), tmp_path / "alone").summary
     assert alone["stops_skipped"] >= 1 and alone["gap_violations"] >= 1 and alone["min_margin_m"] < -100
+
+
+def test_a_train_standing_in_its_platform_behind_another_has_served_its_stop(line_factory, network_factory):
+    """A convoy follower stands in the platform behind its leader (SUMO serves the stop there); the
+    supervision then no longer brakes it to the platform's end after the convoy leaves (regional_graded
+    all-stops VC capacity: the follower crept 146 m at 0.08 m/s and fell 2 km behind its leader)."""
+    from vcsumo.signalling.assumptions import load_assumptions
+    from vcsumo.signalling.separation import SeparationModel
+    from vcsumo.sim.supervision import BrakingCurveSupervisor
+    from vcsumo.timetable import load_timetable, plan_trains
+
+    line = line_factory("regional_graded")
+    tt, p = load_timetable("all_stations", line)
+    t = next(x for x in plan_trains(tt, p, line, network_factory("regional_graded").topology) if len(x.stops) >= 2)
+    stop = t.stops[0]
+    assert stop.platform_length_m > 0
+    sup = BrakingCurveSupervisor(SeparationModel(load_assumptions()), "mb", [t], 0.5)
+    before = stop.s_m - stop.platform_length_m - 5.0
+    sup.permitted(t.id, 0.0, before, 0.0)  # standing short of the platform (held at a signal): still its stop
+    assert sup.curves[t.id].next_stop == 0 and sup.permitted(t.id, 0.5, before, 20.0).reason == "stop"
+    inside = stop.s_m - 0.5 * stop.platform_length_m
+    assert sup.permitted(t.id, 1.0, inside, 15.0).reason == "stop"  # running in the platform: still braking for it
+    sup.permitted(t.id, 1.5, inside, 0.0)  # standing in it
+    assert sup.curves[t.id].next_stop == 1
+    assert sup.permitted(t.id, 2.0, inside + 0.5, 1.0).reason != "stop" or t.stops[1].s_m - inside < 500.0

@@ -16,10 +16,9 @@ from vcsumo.signalling.uic406 import (
     compress,
     convoy_pairs,
     line_sections,
-    reference_arrivals,
     stairs,
-    timetable_run,
 )
+from vcsumo.signalling.scheduled_run import reference_arrivals, timetable_run
 
 from .conftest import write
 
@@ -169,7 +168,7 @@ def test_consumption_on_a_real_line_grows_by_one_headway_per_train(tmp_path, lin
     occ, cyc = [], []
     for n in (1, 2, 3):
         _, trains = _felez_tt(tmp_path, n, line, net)
-        df = capacity_consumption(line, net, trains, "fbs")
+        df = capacity_consumption(line, net.topology, trains, "fbs")
         assert list(df.direction) == ["up"] and df.trains.iloc[0] == n
         occ.append(df.occupation_s.iloc[0])
         cyc.append(df.cycle_s.iloc[0])
@@ -179,9 +178,9 @@ def test_consumption_on_a_real_line_grows_by_one_headway_per_train(tmp_path, lin
     assert cyc == pytest.approx([h, 2 * h, 3 * h], abs=0.016)  # cycles reported to 0.01 s: 3h carries 3 roundings
     # the scheduled spacing does not matter once compressed
     _, trains = _felez_tt(tmp_path, 3, line, net, every=300.0)
-    assert capacity_consumption(line, net, trains, "fbs").occupation_s.iloc[0] == pytest.approx(occ[2])
+    assert capacity_consumption(line, net.topology, trains, "fbs").occupation_s.iloc[0] == pytest.approx(occ[2])
     # window: consumption = occupation / window
-    df = capacity_consumption(line, net, trains, "fbs", window_s=1800.0)
+    df = capacity_consumption(line, net.topology, trains, "fbs", window_s=1800.0)
     assert df.consumption_pct.iloc[0] == pytest.approx(100 * occ[2] / 1800.0, abs=0.0051)  # reported to 0.01 %
 
 
@@ -192,13 +191,13 @@ def test_moving_block_and_virtual_coupling_consume_less(line_factory, network_fa
     pairs = convoy_pairs(tt, trains)
     assert ("UL.1", "UF.1") in pairs and len(pairs) == 6
     cache: dict = {}
-    res = {r: capacity_consumption(line, net, trains, r, pairs, cache=cache) for r in ("fbs", "mb", "vc")}
+    res = {r: capacity_consumption(line, net.topology, trains, r, pairs, cache=cache) for r in ("fbs", "mb", "vc")}
     for col in ("occupation_s", "cycle_s"):
         for d in ("up", "down"):
             f, m, v = (float(res[r].loc[res[r].direction == d, col].iloc[0]) for r in ("fbs", "mb", "vc"))
             assert f > m > v, (col, d, f, m, v)
     # without convoys, vc is moving block
-    assert capacity_consumption(line, net, trains, "vc", None, cache=cache).cycle_s.tolist() == res["mb"].cycle_s.tolist()
+    assert capacity_consumption(line, net.topology, trains, "vc", None, cache=cache).cycle_s.tolist() == res["mb"].cycle_s.tolist()
 
 
 def test_shipped_dense_timetables_are_tight_but_not_over_capacity(line_factory, network_factory):
@@ -206,7 +205,7 @@ def test_shipped_dense_timetables_are_tight_but_not_over_capacity(line_factory, 
         line, net = line_factory(name), network_factory(name)
         tt, p = load_timetable("dense", line)
         trains = plan_trains(tt, p, line, net.topology)
-        df = capacity_consumption(line, net, trains, "fbs")
+        df = capacity_consumption(line, net.topology, trains, "fbs")
         assert lo < df.cyclic_consumption_pct.max() < 100.0, (name, df.cyclic_consumption_pct.max())
 
 
@@ -214,7 +213,7 @@ def test_bad_regime_or_window(line_factory, network_factory, tmp_path):
     line, net = line_factory("felez_test"), network_factory("felez_test")
     _, trains = _felez_tt(tmp_path, 1, line, net)
     with pytest.raises(VcsumoError, match="unknown regime"):
-        capacity_consumption(line, net, trains, "etcs3")
+        capacity_consumption(line, net.topology, trains, "etcs3")
     with pytest.raises(VcsumoError, match="window"):
-        capacity_consumption(line, net, trains, "fbs", window_s=0.0)
-    assert not math.isnan(capacity_consumption(line, net, trains, "mb").consumption_pct.iloc[0])
+        capacity_consumption(line, net.topology, trains, "fbs", window_s=0.0)
+    assert not math.isnan(capacity_consumption(line, net.topology, trains, "mb").consumption_pct.iloc[0])

@@ -58,6 +58,19 @@ class UncertaintyBox(StrictModel):
     max_power_w: Interval = Field(description="P_dr interval, W")
     max_brake_power_w: Interval | None = Field(default=None, description="P_br interval, W")
 
+    @model_validator(mode="after")
+    def _physical(self) -> "UncertaintyBox":
+        """Every corner of the box is a train: positive mass, traction, braking and power, resistance not negative."""
+        for key in ("mass_kg", "max_accel_mps2", "service_brake_decel_mps2", "max_power_w", "max_brake_power_w"):
+            iv = getattr(self, key)
+            if iv is not None and not (iv.low > 0 and math.isfinite(iv.high)):
+                raise FieldProblem(f"{key}.low", f"the interval [{iv.low}, {iv.high}] must be positive and finite")
+        for key in ("davis_a_n", "davis_b_n_per_mps", "davis_c_n_per_mps2"):
+            iv = getattr(self, key)
+            if not (iv.low >= 0 and math.isfinite(iv.high)):
+                raise FieldProblem(f"{key}.low", f"the interval [{iv.low}, {iv.high}] must be finite and not negative")
+        return self
+
 
 class RollingStock(StrictModel):
     """A train type.  All fields SI; the unit is in every field name."""
@@ -212,8 +225,8 @@ class _VTypeVariant(RollingStock):
 
     true_stock: RollingStock = Field(description="The train as SUMO runs it (its vType)")
 
-    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail") -> str:
-        return self.true_stock.vtype_xml(tunnel_factor, vclass)
+    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail", min_gap_m: float = 5.0) -> str:
+        return self.true_stock.vtype_xml(tunnel_factor, vclass, min_gap_m)
 
 
 def rolling_stock_dir() -> Path:

@@ -102,7 +102,7 @@ def run(cfg: RunConfig) -> None:
     with ResultsFolder(out, inputs=inputs, seed=cfg.seed, params=params) as rf:
         with progress_bar() as prog, progress_task(prog, f"{line.name} {tt.name} {cfg.regime}") as upd:
             scn = Scenario(line, net, trains, cfg.regime, step_length_s=cfg.step_s, seed=cfg.seed, driver=driver, end_time_s=cfg.end_time,
-                           assumptions=inp.assumptions)
+                           assumptions=inp.assumptions, sumo_fcd=cfg.sumo_fcd)
             res = simulate(scn, rf.path, upd)
         log.info("SUMO's messages: %s, %s", out / "sumo_messages.log", out / "sumo_errors.log")
         infra = write_infrastructure(net.topology, rf.path)
@@ -123,6 +123,11 @@ def run(cfg: RunConfig) -> None:
     gap_text = f"{gap:.1f} m" if isinstance(gap, (int, float)) and math.isfinite(gap) else "– (no train ran behind another)"
     out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {gap_text}, "
                       f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
+    if driver is not None:
+        loose = {fid: f.formation.reason() for fid, f in driver.followers.items() if f.formation.reason()}
+        text = "; ".join(f"{fid}: {why}" for fid, why in sorted(loose.items())[:6]) + (" …" if len(loose) > 6 else "")
+        out_console.print(f"convoy followers formed {s.get('followers_formed', 0)}/{len(driver.followers)}"
+                          + (f" — not formed: {text} (vc_summary.json)" if loose else ""))
     out_console.print(f"wrote {out}")
     reasons = unhealthy_reasons(s, cut_short=cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s)
     if reasons:
@@ -210,8 +215,8 @@ def capacity(cfg: CapacityConfig) -> None:
         if shown:
             prog.stop()
     print_table(df, f"capacity — {line.name} ({stock.name})", ["direction", "stopping_pattern", "regime", "controller", "convoy_size", "headway_sim_s",
-                "headway_analytic_s", "intra_convoy_gap_m", "capacity_trains_per_h", "gain_vs_fbs", "min_gap_m", "gap_violations", "collisions"],
-                csv_path=out / "capacity.csv", drop_first=["headway_analytic_s", "intra_convoy_gap_m", "min_gap_m"])
+                "headway_analytic_s", "intra_convoy_gap_m", "convoy_formed", "capacity_trains_per_h", "gain_vs_fbs", "healthy", "min_margin_m"],
+                csv_path=out / "capacity.csv", drop_first=["headway_analytic_s", "intra_convoy_gap_m", "min_margin_m", "convoy_formed"])
     failed = df[df.error.astype(str) != ""]  # listed with their errors under the table
     if df.attrs.get("resumed_cases"):
         out_console.print(f"{df.attrs['new_cases']} cases run now, {df.attrs['resumed_cases']} already in {out / 'capacity_cases.csv'}")

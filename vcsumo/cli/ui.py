@@ -62,7 +62,7 @@ LABELS = {
     "capacity_trains_per_h": "capacity tr/h", "gain_vs_fbs": "gain ×FBS", "min_gap_m": "min gap m", "gap_violations": "gap viol.",
     "collisions": "coll.", "emergency_brakes": "emerg. brakes", "measuring_point_km": "point km", "deviation_pct": "dev. %",
     "speed_at_point_mps": "v m/s", "critical_section_km": "critical km", "release_interval_s": "release s", "simulations": "sims",
-    "guard_interventions": "guard", "healthy": "healthy",
+    "guard_interventions": "guard", "healthy": "healthy", "min_margin_m": "margin m", "convoy_formed": "formed",
     # run
     "run_min": "run min", "delay_s": "delay s",
     # batch

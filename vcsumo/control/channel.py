@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Annotated, Literal
 
 import numpy as np
@@ -58,14 +58,6 @@ class ChannelConfig(StrictModel):
     seed: int = Field(default=0, ge=0, description="Seed of the channel's random numbers (numpy needs it not negative)")
 
 
-@dataclass(order=True)
-class _InFlight:
-    deliver_at: float
-    seq: int
-    link: tuple[str, str] = field(compare=False)
-    msg: Message = field(compare=False)
-
-
 class Channel:
     """Delivers messages between trains according to a :class:`ChannelConfig`."""
 
@@ -74,10 +66,12 @@ class Channel:
         if self.cfg.model == "empirical" and not self.cfg.samples_s:
             raise ValueError("empirical channel needs samples_s")
         self.rng = np.random.default_rng(self.cfg.seed)
-        self._queue: list[_InFlight] = []
+        self._queue: list[tuple[float, int, str, Message]] = []
+        """Messages in flight as (delivery time, send order, receiver, message): a heap."""
         self._seq = 0
         self._last_sent: dict[str, float] = {}
-        self._latest: dict[tuple[str, str], Message] = {}
+        self._latest: dict[str, dict[str, Message]] = {}
+        """receiver -> sender -> latest message delivered (indexed by receiver: a delivery reads only its own links)."""
         self.sent = 0
         self.lost = 0
         self.delivered = 0
@@ -123,32 +117,45 @@ class Channel:
                 self.lost += 1
                 continue
             self._seq += 1
-            heapq.heappush(self._queue, _InFlight(t + d, self._seq, (msg.sender, r), msg))
+            heapq.heappush(self._queue, (t + d, self._seq, r, msg))
+
+    def advance(self, t: float) -> None:
+        """Deliver every message due by time t (to whichever receiver); :meth:`deliver` does this first."""
+        queue = self._queue
+        outages = self.cfg.outages
+        while queue and queue[0][0] <= t + 1e-9:
+            deliver_at, _, receiver, msg = heapq.heappop(queue)
+            if outages and (any(w.start_s <= deliver_at < w.end_s for w in outages) or any(w.start_s <= msg.sent_time_s < w.end_s for w in outages)):
+                self.lost += 1
+                continue
+            links = self._latest.get(receiver)
+            if links is None:
+                links = self._latest[receiver] = {}
+            prev = links.get(msg.sender)
+            if prev is None or prev.sent_time_s <= msg.sent_time_s:
+                if type(msg) is Message:  # (dataclasses.replace without its per-call introspection)
+                    links[msg.sender] = Message(msg.sender, msg.sent_time_s, msg.state, msg.length_m, msg.plan_times_s, msg.plan_positions_m,
+                                                msg.plan_speeds_mps, msg.plan_forces_n, deliver_at)
+                else:
+                    links[msg.sender] = replace(msg, received_time_s=deliver_at)
+                self.delivered += 1
 
     def deliver(self, receiver: str, t: float) -> dict[str, Message]:
         """Latest message per sender delivered to ``receiver`` up to time t."""
-        while self._queue and self._queue[0].deliver_at <= t + 1e-9:
-            item = heapq.heappop(self._queue)
-            if any(w.start_s <= item.deliver_at < w.end_s for w in self.cfg.outages) or any(
-                w.start_s <= item.msg.sent_time_s < w.end_s for w in self.cfg.outages
-            ):
-                self.lost += 1
-                continue
-            prev = self._latest.get(item.link)
-            if prev is None or prev.sent_time_s <= item.msg.sent_time_s:
-                self._latest[item.link] = replace(item.msg, received_time_s=item.deliver_at)
-                self.delivered += 1
+        self.advance(t)
         return self.latest(receiver)
 
     def remember(self, receiver: str, msg: Message) -> None:
         """Hold ``msg`` as delivered to ``receiver`` (a link already up when a run starts)."""
-        prev = self._latest.get((msg.sender, receiver))
+        links = self._latest.setdefault(receiver, {})
+        prev = links.get(msg.sender)
         if prev is None or prev.sent_time_s <= msg.sent_time_s:
-            self._latest[(msg.sender, receiver)] = msg
+            links[msg.sender] = msg
 
     def latest(self, receiver: str) -> dict[str, Message]:
         """Latest message per sender delivered to ``receiver`` so far (what the last :meth:`deliver` returned); delivers nothing."""
-        return {s: m for (s, r), m in self._latest.items() if r == receiver}
+        links = self._latest.get(receiver)
+        return dict(links) if links else {}
 
     @property
     def loss_ratio(self) -> float:

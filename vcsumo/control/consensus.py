@@ -30,9 +30,10 @@ Variants (predecessor–follower laws, ``topology: PF``):
 (signs written for vcsumo's frame, where a gap larger than the reference must make the follower
 accelerate and the speed-limit term must brake; see the notes on those functions).
 
-Linear analysis.  :func:`closed_loop_stable`, :func:`delay_margin_s` and :func:`string_gain`
-evaluate the linearised closed loop (eq. 4.2 with the T2T delay of eq. 4.3) in the frequency
-domain; the tests use them to justify the delay bound and the string-stability condition.
+Modules: the settings are in :mod:`vcsumo.control.consensus_params`;
+:mod:`vcsumo.control.consensus_stability` evaluates the linearised closed loop (eq. 4.2 with the T2T
+delay of eq. 4.3) in the frequency domain (delay margin, string gain); this module holds the
+controller and the acceleration → force step.
 """
 
 from __future__ import annotations
@@ -41,81 +42,14 @@ import math
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, MutableMapping
+from typing import Any, MutableMapping
 
-import numpy as np
-from pydantic import Field, model_validator
-
-from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Message, Observation
-from vcsumo.control.gap_reference import GapReference, GapSample, SteadyGap
-from vcsumo.control.topology_graph import ConvoyGraph, TopologyName, convoy_graph
+from vcsumo.control.consensus_params import CbcParams, LiuParams, ZhouParams, cbc_params_for, load_cbc_params
+from vcsumo.control.gap_reference import GapReference, GapSample
+from vcsumo.control.topology_graph import convoy_graph
 from vcsumo.dynamics import V_EPS_MPS, TrainParams, acceleration, brake_force_limit, gradient_force, running_resistance, traction_limit
 from vcsumo.units import G
-
-# ---------------------------------------------------------------------------------------------
-# Parameters
-
-
-class LiuParams(StrictModel):
-    """Gains of eq. 4.10 (Liu [76])."""
-
-    k1_per_s2: float = Field(default=0.06, gt=0, description="Gain on the current spacing error, 1/s²")
-    k2_mps2: float = Field(default=0.5, ge=0, description="Gain of the delayed-distance term, m/s²")
-    k3: float | None = Field(default=None, description="Offset (none: chosen so the bracket vanishes at the reference gap)")
-    k4: float = Field(default=1.0, description="Amplitude of the tanh term, -")
-    k5_per_m: float = Field(default=0.02, gt=0, description="Slope of the tanh term, 1/m")
-    k6: float | None = Field(default=None, description="Shift of the tanh term, - (none: k5·d^de, centred on the reference)")
-    k_rel_speed_per_s: float = Field(default=0.6, ge=0, description="Relative-speed damping, 1/s (0 in the survey's eq. 4.10)")
-
-
-class ZhouParams(StrictModel):
-    """Gains of eq. 4.11 (Zhou et al. [77])."""
-
-    k1_mps2: float = Field(default=0.6, gt=0, description="Spacing-error gain, m/s²")
-    k2_mps2: float = Field(default=0.6, gt=0, description="Speed-error gain, m/s²")
-    k3_mps2: float = Field(default=0.002, ge=0, description="Speed-limit barrier gain, m/s²")
-    spacing_scale_m: float = Field(default=15.0, gt=0, description="ℓ: e^sp/ℓ inside tanh, m")
-    speed_scale_mps: float = Field(default=1.0, gt=0, description="ν: e^sv/ν inside tanh, m/s")
-
-
-class CbcParams(StrictModel):
-    """Consensus-based controller settings (``controllers/cbc.yaml``)."""
-
-    law: Literal["consensus", "liu_tanh", "zhou_tanh"] = Field(default="consensus", description="eq. 4.1–4.5 (consensus), 4.10 or 4.11")
-    topology: TopologyName = Field(default="PF", description="T2T communication topology (PF, PLF, BD, BDL, TPF)")
-    gap: SteadyGap = Field(default_factory=SteadyGap, description="Steady gap reference (eq. 3.1 + time headway)")
-    k_pos_per_s2: float = Field(default=0.04, gt=0, description="k_x: position-disagreement gain, 1/s²")
-    k_vel_per_s: float = Field(default=0.8, ge=0, description="k_v: speed-disagreement gain, 1/s")
-    k_acc: float = Field(default=0.5, ge=0, description="k_a: acceleration-disagreement gain (third-order eq. 4.1), -")
-    k_ref_vel_per_s: float = Field(default=0.0, ge=0, description="k_v0: damping towards the reference speed v_0 (eq. 4.3 k2, eq. 4.5 k1), 1/s")
-    k_own_acc: float = Field(default=0.0, ge=0, description="k_a0: own-acceleration damping (eq. 4.3 k3), -")
-    accel_feedforward: float = Field(default=0.5, ge=0, le=1, description="c_ff: weight of the neighbours' acceleration feed-forward, -")
-    normalize: bool = Field(default=True, description="Divide by Σ a_ij (eq. 4.3); false: plain eq. 4.1")
-    delay_compensation: Literal["none", "reference", "sender"] = Field(
-        default="reference", description="Add τ_ij·v_0 (reference, eq. 4.3), τ_ij·v_j (sender) or nothing to delayed positions"
-    )
-    link_bound_mps2: float | None = Field(default=None, gt=0, le=10, description="Δ of eq. 4.4: per-link saturation, m/s², up to 10 (none: linear)")
-    max_message_age_s: float = Field(default=5.0, gt=0, le=600, description="Older messages are ignored (link treated as lost), s (at most 600)")
-    speed_limit_gain_per_s: float | None = Field(default=0.5, gt=0, description="u ≤ k·(v_lim − v) keeps the line/train speed limit (none: off), 1/s")
-    leader_speed_gain_per_s: float = Field(default=0.3, gt=0, description="P gain when this controller drives a convoy leader, 1/s")
-    liu: LiuParams = Field(default_factory=LiuParams)
-    zhou: ZhouParams = Field(default_factory=ZhouParams)
-
-    @model_validator(mode="after")
-    def _pf_only(self) -> "CbcParams":
-        if self.law != "consensus" and self.topology != "PF":
-            raise ValueError(f"law '{self.law}' is a predecessor-follower law (eq. 4.10/4.11): topology must be PF")
-        return self
-
-
-def load_cbc_params(spec: str | Path = "cbc", field: str | None = "controller", base_dir: str | Path | None = None) -> CbcParams:
-    """Load CBC settings by name (``cbc`` → ``controllers/cbc.yaml``) or by path to a YAML file
-    (resolved by :func:`vcsumo.control.params.resolve_params`; errors name ``field``)."""
-    from vcsumo.control.params import resolve_params
-
-    return load_model(CbcParams, resolve_params(spec, "cbc", field, base_dir))
-
 
 # ---------------------------------------------------------------------------------------------
 # Low level: acceleration → force (inverse of eq. 1b / survey eq. 2.2)
@@ -406,212 +340,6 @@ class ConsensusController:
         return Command(force_n=force, mode=mode, info=info)
 
 
-# ---------------------------------------------------------------------------------------------
-# Linear analysis of the closed loop (eq. 4.2 with delays, eq. 4.3)
-
-
-def _loop_matrices(prm: CbcParams, graph: ConvoyGraph, lag_s: float, delay_s: float) -> tuple[list[np.ndarray], np.ndarray]:
-    """Own polynomials q_i(s) and neighbour polynomials p_ij(s) (highest power first).
-
-    Linearised follower i (plant (τs+1)s²X_i = U_i, leader exogenous, leader speed broadcast):
-        q_i(s) X_i − e^{−sθ} Σ_{j≥1} p_ij(s) X_j = (leader terms)
-        q_i = τs³ + (1 + k_a0 + k_a Σw)s² + (k_v Σw + k_v0 + k_x h Σ_j w_ij (i−j))s + k_x Σw
-        p_ij = w_ij (k_a s² + (k_v + k_x θ [sender compensation]) s + k_x) + w̄_ij c_ff s²
-    """
-    n_f = graph.n_followers
-    tau = max(lag_s, 1e-3)
-    full = graph.full_adjacency()
-    eta = graph.in_degree()
-    qs: list[np.ndarray] = []
-    P = np.zeros((n_f, n_f, 3))
-    theta_s = delay_s if prm.delay_compensation == "sender" else 0.0
-    for r in range(n_f):
-        i = r + 1
-        row = full[i]
-        w = row / eta[r] if prm.normalize else row.copy()
-        wbar = row / eta[r]
-        sw = w.sum()
-        sigma = sum(w[j] * (i - j) for j in range(graph.n_trains))
-        qs.append(np.array([tau, 1 + prm.k_own_acc + prm.k_acc * sw, prm.k_vel_per_s * sw + prm.k_ref_vel_per_s + prm.k_pos_per_s2 * prm.gap.headway_s * sigma, prm.k_pos_per_s2 * sw]))
-        for j in range(1, graph.n_trains):
-            if row[j] > 0:
-                P[r, j - 1] = w[j] * np.array([prm.k_acc, prm.k_vel_per_s + prm.k_pos_per_s2 * theta_s, prm.k_pos_per_s2]) + wbar[j] * np.array([prm.accel_feedforward, 0.0, 0.0])
-    return qs, P
-
-
-def _omega_grid(n: int = 4000, w_min: float = 1e-4, w_max: float = 200.0) -> np.ndarray:
-    return np.concatenate([[0.0], np.logspace(math.log10(w_min), math.log10(w_max), n)])
-
-
-def closed_loop_stable(prm: CbcParams, n_trains: int, lag_s: float, delay_s: float = 0.0) -> bool:
-    """Is the linearised convoy (eq. 4.2) with constant T2T delay θ = ``delay_s`` asymptotically stable?
-
-    Generalised Nyquist criterion: with every own loop q_i Hurwitz, the quasi-polynomial
-    det(Q(s) − e^{−sθ}P(s)) has no root in Re s ≥ 0 iff det(I − e^{−jωθ}Q⁻¹P(jω)) does not encircle 0.
-    """
-    graph = convoy_graph(prm.topology, n_trains)
-    qs, P = _loop_matrices(prm, graph, lag_s, delay_s)
-    for q in qs:
-        if np.any(np.roots(q).real >= 0):
-            return False
-    w = _omega_grid()
-    s = 1j * w
-    qv = np.stack([np.polyval(q, s) for q in qs], axis=1)  # (W, N)
-    pv = P[..., 0][None] * s[:, None, None] ** 2 + P[..., 1][None] * s[:, None, None] + P[..., 2][None]
-    g = np.exp(-s * delay_s)[:, None, None] * pv / qv[:, :, None]
-    n_f = graph.n_followers
-    det = np.linalg.det(np.eye(n_f)[None] - g)
-    if np.min(np.abs(det)) < 1e-9:
-        return False
-    phase = np.unwrap(np.angle(det))
-    winding = 2.0 * (phase[-1] - phase[0]) / (2 * math.pi)
-    return abs(winding) < 0.5
-
-
-def delay_margin_s(prm: CbcParams, n_trains: int, lag_s: float, max_delay_s: float = 10.0, step_s: float = 0.1) -> float:
-    """Smallest constant T2T delay that destabilises the linearised convoy, s (inf if none ≤ ``max_delay_s``).
-
-    For acyclic topologies (PF, PLF, TPF) Q⁻¹P is nilpotent, det ≡ 1, and the margin is infinite:
-    the delay can only degrade string stability (:func:`string_gain`), not internal stability.
-    """
-    if not closed_loop_stable(prm, n_trains, lag_s, 0.0):
-        return 0.0
-    if convoy_graph(prm.topology, n_trains).is_acyclic():
-        return math.inf  # Q⁻¹P strictly lower triangular: det(I − e^{−sθ}Q⁻¹P) ≡ 1 for every θ
-    theta = step_s
-    prev = 0.0
-    while theta <= max_delay_s + 1e-12:
-        if not closed_loop_stable(prm, n_trains, lag_s, theta):
-            lo, hi = prev, theta
-            for _ in range(20):
-                mid = 0.5 * (lo + hi)
-                if closed_loop_stable(prm, n_trains, lag_s, mid):
-                    lo = mid
-                else:
-                    hi = mid
-            return 0.5 * (lo + hi)
-        prev = theta
-        theta += step_s
-    return math.inf
-
-
-def leader_response(prm: CbcParams, n_trains: int, lag_s: float, omega_rad_s: np.ndarray, delay_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Frequency responses from the leader's position X_0 to every follower, linearised (eq. 4.2 with delay θ).
-
-    Solves (Q(jω) − e^{−jωθ}P(jω)) X = b(jω) X_0, where b collects everything follower i receives from
-    the leader: the pinning link a_i0 (k_x, k_v, k_a, c_ff, its delay compensation), the eq. 4.3
-    reference-speed compensation θ·v_0 on every link, and k_v0·v_0.  Returns (X_i/X_0, E_i/X_0), each of
-    shape (N, len(ω)), with the gap error E_i = X_{i−1} − X_i − h·s·X_i (constant time headway, eq. 3.1).
-    """
-    graph = convoy_graph(prm.topology, n_trains)
-    qs, P = _loop_matrices(prm, graph, lag_s, delay_s)
-    n_f = graph.n_followers
-    full = graph.full_adjacency()
-    eta = graph.in_degree()
-    w = np.asarray(omega_rad_s, dtype=float)
-    s = 1j * w
-    z = np.exp(-s * delay_s)
-    comp_leader = prm.delay_compensation in ("reference", "sender")
-    b = np.zeros((len(w), n_f), dtype=complex)
-    for r in range(n_f):
-        row = full[r + 1]
-        wr = row / eta[r] if prm.normalize else row.copy()
-        wbar0 = row[0] / eta[r]
-        k_v = prm.k_vel_per_s + (prm.k_pos_per_s2 * delay_s if comp_leader else 0.0)
-        bi = wr[0] * (prm.k_acc * s**2 + k_v * s + prm.k_pos_per_s2) + wbar0 * prm.accel_feedforward * s**2
-        if prm.delay_compensation == "reference":
-            bi = bi + wr[1:].sum() * prm.k_pos_per_s2 * delay_s * s
-        bi = bi + prm.k_ref_vel_per_s * s
-        b[:, r] = z * bi
-    M = np.zeros((len(w), n_f, n_f), dtype=complex)
-    for r, q in enumerate(qs):
-        M[:, r, r] = np.polyval(q, s)
-    M -= z[:, None, None] * (P[..., 0][None] * s[:, None, None] ** 2 + P[..., 1][None] * s[:, None, None] + P[..., 2][None])
-    X = np.linalg.solve(M, b[..., None])[..., 0]  # (W, N)
-    ahead = np.concatenate([np.ones((len(w), 1)), X[:, :-1]], axis=1)
-    E = ahead - X - prm.gap.headway_s * s[:, None] * X
-    return X.T, E.T
-
-
-def string_gain_response(prm: CbcParams, lag_s: float, omega_rad_s: np.ndarray, delay_s: float = 0.0) -> np.ndarray:
-    """|G(jω)| of the PF predecessor→follower transfer (homogeneous string, linearised), -.
-
-    G(s) = e^{−sθ} p(s)/q(s) with the PF row of :func:`_loop_matrices`.  With compensation ``none``
-    or ``sender`` (or no delay) the PF string is a pure cascade: positions and gap errors of
-    consecutive followers are related by G, so a disturbance at frequency ω is multiplied by
-    |G(jω)| from one follower to the next.  With the eq. 4.3 ``reference`` compensation and θ > 0
-    every follower also receives θ·v_0 from the leader (an extra path): use :func:`leader_response`.
-    """
-    qs, P = _loop_matrices(prm.model_copy(update={"topology": "PF"}), convoy_graph("PF", 3), lag_s, delay_s)
-    s = 1j * np.asarray(omega_rad_s, dtype=float)
-    return np.abs(np.polyval(P[1, 0], s) / np.polyval(qs[1], s))
-
-
-def string_gain_peak(prm: CbcParams, lag_s: float, delay_s: float = 0.0) -> tuple[float, float]:
-    """(sup_ω |G(jω)|, the ω in rad/s where it is reached) for the PF string (see :func:`string_gain_response`)."""
-    w = _omega_grid(20000)[1:]
-    g = string_gain_response(prm, lag_s, w, delay_s)
-    k = int(np.argmax(g))
-    return float(g[k]), float(w[k])
-
-
-def string_gain(prm: CbcParams, lag_s: float, delay_s: float = 0.0) -> float:
-    """sup_ω |G(jω)|: the PF cascade is (L2) string stable iff it is ≤ 1 (G(0) = 1 always)."""
-    return string_gain_peak(prm, lag_s, delay_s)[0]
-
-
-def string_stability_delay_bound_s(prm: CbcParams, lag_s: float, max_delay_s: float = 10.0, tol: float = 1e-6) -> float:
-    """Largest constant delay keeping the PF cascade string stable (sup|G| ≤ 1), s.
-
-    0 if not string stable without delay, inf if never lost up to ``max_delay_s``.  Only defined for
-    cascades (compensation ``none`` or ``sender``): with ``reference`` G does not depend on θ and the
-    delay acts through the leader path instead (see :func:`leader_response`).
-    """
-    if prm.delay_compensation == "reference":
-        raise ValueError("with reference-speed compensation the PF string is not a pure cascade: use leader_response")
-    if string_gain(prm, lag_s, 0.0) > 1.0 + tol:
-        return 0.0
-    if string_gain(prm, lag_s, max_delay_s) <= 1.0 + tol:
-        return math.inf
-    lo, hi = 0.0, max_delay_s
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        if string_gain(prm, lag_s, mid) <= 1.0 + tol:
-            lo = mid
-        else:
-            hi = mid
-    return lo
-
-
-def closed_loop_poles(prm: CbcParams, n_trains: int, lag_s: float) -> np.ndarray:
-    """Eigenvalues of the delay-free linearised convoy (eq. 4.2; state [x, v, a] per follower), 1/s."""
-    graph = convoy_graph(prm.topology, n_trains)
-    qs, P = _loop_matrices(prm, graph, lag_s, 0.0)
-    n_f = graph.n_followers
-    A = np.zeros((3 * n_f, 3 * n_f))
-    for r, q in enumerate(qs):
-        tau = q[0]
-        A[3 * r, 3 * r + 1] = 1.0
-        A[3 * r + 1, 3 * r + 2] = 1.0
-        A[3 * r + 2, 3 * r : 3 * r + 3] = -q[[3, 2, 1]] / tau
-        for c in range(n_f):
-            A[3 * r + 2, 3 * c : 3 * c + 3] += P[r, c][[2, 1, 0]] / tau
-    return np.linalg.eigvals(A)
-
-
-def settling_rate_per_s(prm: CbcParams, n_trains: int, lag_s: float) -> float:
-    """−max Re of the delay-free closed-loop poles (:func:`closed_loop_poles`): errors decay like e^{−rate·t}, 1/s."""
-    return float(-closed_loop_poles(prm, n_trains, lag_s).real.max())
-
-
-def cbc_params_for(topology: str, base: CbcParams | None = None, **changes: Any) -> CbcParams:
-    """A copy of ``base`` (default settings) with another topology and field changes, re-validated."""
-    data = (base or CbcParams()).model_dump()
-    data.update(changes)
-    data["topology"] = topology
-    return CbcParams.model_validate(data)
-
-
 __all__ = [
     "CbcParams",
     "ConsensusController",
@@ -619,17 +347,7 @@ __all__ = [
     "ZhouParams",
     "acceleration_envelope",
     "cbc_params_for",
-    "closed_loop_poles",
-    "closed_loop_stable",
-    "delay_margin_s",
     "force_for_acceleration",
-    "leader_response",
     "load_cbc_params",
     "sat",
-    "settling_rate_per_s",
-    "string_gain",
-    "string_gain_peak",
-    "string_gain_response",
-    "string_stability_delay_bound_s",
 ]
-

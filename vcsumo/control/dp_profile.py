@@ -26,14 +26,14 @@ profile is exactly reachable under 10c–10e.  Results (:class:`SpeedProfile`):
   cost-to-go (the terminal set of Fig. 7; computed exactly by a backward full-brake recursion of
   10c).  It equals v_DP* wherever v_DP* is not limited by the acceleration from the start.
 
-:func:`terminal_set` lowers that boundary to the one of the NMPC's own time-discrete model
+:func:`vcsumo.control.mpc_terminal.terminal_set` lowers that boundary to the one of the NMPC's own time-discrete model
 (explicit Euler in time, eq. 6b, full brake) so that a plan ending on it can follow it; the NMPC
 (:mod:`vcsumo.control.mpc`) uses it for the terminal constraints 11i/12k, so a train entering the
 route at speed is not forced onto the start-up curve.
 
 The speed limit is the train-length limit (lowest over the whole train [s − L, s], SUMO's rule,
 turnout limits included) and the gradient is the mean over the train, from a
-:class:`~vcsumo.route_profile.RouteProfile` via :class:`RouteLookup` (vectorised look-ups, used by
+:class:`~vcsumo.route_profile.RouteProfile` via :class:`~vcsumo.control.route_lookup.RouteLookup` (vectorised look-ups, used by
 the NMPC as well).  Results are cached in memory per (train, route content, arguments): 0.2 s for
 the 4 km §IV-A track, a few seconds for an 80 km high-speed line.
 """
@@ -48,129 +48,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vcsumo.control.route_lookup import RouteLookup, route_profile_from_arrays, straight_route_profile
 from vcsumo.dynamics import TrainParams, brake_force_limit, gradient_force, running_resistance, traction_limit
 from vcsumo.route_profile import RouteProfile
-
-# -------------------------------------------------------------------------------------------
-# Route look-ups (vectorised)
-
-
-def straight_route_profile(length_m: float, speed_limit_mps: float, gradient: float = 0.0, tunnel_factor: float = 1.0, edge_length_m: float | None = None) -> RouteProfile:
-    """A straight level (or constant-gradient) test track as a :class:`RouteProfile` built from plain arrays.
-
-    One edge (or equal edges of ``edge_length_m``), uniform speed limit, gradient and tunnel
-    factor; used by the Felez et al. §IV-A test track and the unit tests.
-    """
-    if edge_length_m is None or edge_length_m >= length_m:
-        lengths = np.array([float(length_m)])
-    else:
-        n = int(math.ceil(length_m / edge_length_m))
-        lengths = np.full(n, float(length_m) / n)
-    n = len(lengths)
-    starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
-    return RouteProfile(
-        edges=[f"e{i}" for i in range(n)], starts_m=starts, lengths_m=lengths, speeds_ms=np.full(n, float(speed_limit_mps)),
-        gradients=np.full(n, float(gradient)), tunnel_factors=np.full(n, float(tunnel_factor)), sections=["test"] * n,
-        km_from=starts / 1000.0, km_to=(starts + lengths) / 1000.0, point_limits=[],
-    )
-
-
-def route_profile_from_arrays(starts_m, speeds_mps, gradients=None, tunnel_factors=None, length_m: float | None = None) -> RouteProfile:
-    """A :class:`RouteProfile` from piecewise-constant arrays (segment starts, limits, gradients)."""
-    starts = np.asarray(starts_m, dtype=float)
-    if length_m is None:
-        raise ValueError("length_m is required")
-    ends = np.append(starts[1:], float(length_m))
-    lengths = ends - starts
-    n = len(starts)
-    grads = np.zeros(n) if gradients is None else np.asarray(gradients, dtype=float)
-    tfs = np.ones(n) if tunnel_factors is None else np.asarray(tunnel_factors, dtype=float)
-    return RouteProfile(
-        edges=[f"e{i}" for i in range(n)], starts_m=starts, lengths_m=lengths, speeds_ms=np.asarray(speeds_mps, dtype=float),
-        gradients=grads, tunnel_factors=tfs, sections=["arrays"] * n, km_from=starts / 1000.0, km_to=ends / 1000.0, point_limits=[],
-    )
-
-
-class RouteLookup:
-    """Vectorised v_lim(s), mean gradient and tunnel factor of a route for one train length.
-
-    * ``speed_limit(s)`` — the lowest limit over the train [s − L, s] including turnout limits
-      (the same rule as :meth:`RouteProfile.speed_limit_train`), piecewise constant;
-    * ``gradient(s)`` — equivalent gradient averaged over the train (as
-      :meth:`RouteProfile.mean_gradient`), exact via the cumulative integral of the gradient;
-    * ``tunnel_factor(s)`` — at the train front.
-
-    Beyond the route end the last values are kept (the DP/terminal set ends the route anyway).
-    """
-
-    def __init__(self, profile: RouteProfile, train_length_m: float):
-        self.profile = profile
-        self.length_m = float(train_length_m)
-        starts = np.asarray(profile.starts_m, dtype=float)
-        lengths = np.asarray(profile.lengths_m, dtype=float)
-        self.route_length_m = float(starts[-1] + lengths[-1])
-        self._starts = starts
-        self._tf = np.asarray(profile.tunnel_factors, dtype=float)
-        # cumulative gradient integral at knots (edge starts + route end)
-        grads = np.asarray(profile.gradients, dtype=float)
-        self._g_knots = np.append(starts, self.route_length_m)
-        self._g_cum = np.concatenate([[0.0], np.cumsum(grads * lengths)])
-        self._g_first = float(grads[0])
-        self._g_last = float(grads[-1])
-        # train-length speed limit: piecewise constant between breakpoints
-        L = self.length_m
-        bps = set(starts.tolist()) | set((starts + L).tolist()) | {self.route_length_m, self.route_length_m + L}
-        for ps, _ in profile.point_limits:
-            bps |= {float(ps), float(ps) + L}
-        bp = np.array(sorted(b for b in bps if b >= 0.0))
-        if bp[0] > 0.0:
-            bp = np.concatenate([[0.0], bp])
-        mids = np.append(0.5 * (bp[:-1] + bp[1:]), bp[-1] + 1.0)
-        vals = np.array([self._limit_scalar(m) for m in mids])
-        self._lim_bp = bp
-        self._lim_val = vals
-        self.uniform = bool(np.all(grads == grads[0]) and np.all(self._tf == self._tf[0]))
-        """Gradient and tunnel factor are the same everywhere (look-ups can be skipped)."""
-        self.gradient0 = float(grads[0])
-        self.tunnel0 = float(self._tf[0])
-
-    def _limit_scalar(self, s: float) -> float:
-        p = self.profile
-        v = p.speed_limit_train(min(s, self.route_length_m - 1e-9), self.length_m)
-        return float(v)
-
-    # ---------------------------------------------------------------------------------------
-    def speed_limit(self, s) -> np.ndarray:
-        """Train-length speed limit v_lim(s), m/s (vectorised)."""
-        s = np.asarray(s, dtype=float)
-        i = np.searchsorted(self._lim_bp, s, side="right") - 1
-        return self._lim_val[np.clip(i, 0, len(self._lim_val) - 1)]
-
-    def _g_int(self, x: np.ndarray) -> np.ndarray:
-        out = np.interp(x, self._g_knots, self._g_cum)
-        out = np.where(x < 0.0, self._g_first * x, out)
-        return np.where(x > self.route_length_m, self._g_cum[-1] + self._g_last * (x - self.route_length_m), out)
-
-    def gradient(self, s) -> np.ndarray:
-        """Equivalent gradient averaged over the train [s − L, s] (rise/run, vectorised)."""
-        s = np.asarray(s, dtype=float)
-        if self.length_m <= 0:
-            return self._g_int(s + 1e-6) - self._g_int(s)
-        return (self._g_int(s) - self._g_int(s - self.length_m)) / self.length_m
-
-    def tunnel_factor(self, s) -> np.ndarray:
-        """Tunnel factor at the train front (vectorised)."""
-        s = np.asarray(s, dtype=float)
-        i = np.searchsorted(self._starts, s, side="right") - 1
-        return self._tf[np.clip(i, 0, len(self._tf) - 1)]
-
-    def restriction_points(self) -> list[tuple[float, float]]:
-        """(position, new limit) wherever the train-length limit drops, sorted."""
-        out = []
-        for j in range(1, len(self._lim_val)):
-            if self._lim_val[j] < self._lim_val[j - 1] - 1e-9:
-                out.append((float(self._lim_bp[j]), float(self._lim_val[j])))
-        return out
 
 
 # -------------------------------------------------------------------------------------------
@@ -193,8 +73,8 @@ class DPSettings:
     k_ldp: float = 1.0e5
 
 
-def _beta_scalar(positions: np.ndarray, b2: np.ndarray, end_decel: float, s: float) -> tuple[float, float]:
-    """Scalar fast path of :func:`_beta` (one look-up per NMPC iteration)."""
+def beta_curve_scalar(positions: np.ndarray, b2: np.ndarray, end_decel: float, s: float) -> tuple[float, float]:
+    """Scalar fast path of :func:`beta_curve` (one look-up per NMPC iteration)."""
     n = len(positions)
     if s > positions[-1]:
         return float(b2[-1] - 2.0 * end_decel * (s - positions[-1])), -2.0 * end_decel
@@ -206,7 +86,7 @@ def _beta_scalar(positions: np.ndarray, b2: np.ndarray, end_decel: float, s: flo
     return float(b2[i] + slope * (s - p0)), float(slope)
 
 
-def _beta(positions: np.ndarray, vmax: np.ndarray, end_decel: float, s) -> tuple[np.ndarray, np.ndarray]:
+def beta_curve(positions: np.ndarray, vmax: np.ndarray, end_decel: float, s) -> tuple[np.ndarray, np.ndarray]:
     """β(s) = v_max(s)² (linear interpolation; v² is nearly linear in s along a braking curve) and
     dβ/ds.  Past the end β keeps falling, β = v_end² − 2·b·(s − s_end), so a state beyond the end of
     the movement is outside the set however slowly it moves."""
@@ -252,8 +132,8 @@ class SpeedProfile:
         return np.interp(s, self.positions_m, self.v_max_mps, left=self.v_max_mps[0], right=0.0)
 
     def beta(self, s) -> tuple[np.ndarray, np.ndarray]:
-        """(v_max(s)², d/ds) with the extension past the end (see :func:`_beta`, b = 1 m/s²)."""
-        return _beta(self.positions_m, self.v_max_mps, 1.0, s)
+        """(v_max(s)², d/ds) with the extension past the end (see :func:`beta_curve`, b = 1 m/s²)."""
+        return beta_curve(self.positions_m, self.v_max_mps, 1.0, s)
 
     def time_s(self) -> float:
         """Running time along v_DP* (trapezoidal in 1/v), s."""
@@ -317,7 +197,7 @@ _CACHE: "OrderedDict[str, SpeedProfile]" = OrderedDict()
 _CACHE_SIZE = 32
 
 
-def _cache_key(params: TrainParams, profile: RouteProfile, *rest) -> str:
+def route_cache_key(params: TrainParams, profile: RouteProfile, *rest) -> str:
     h = hashlib.sha1()
     h.update(repr(params).encode())
     for arr in (profile.starts_m, profile.lengths_m, profile.speeds_ms, profile.gradients, profile.tunnel_factors):
@@ -349,7 +229,7 @@ def dp_speed_profile(
     if not s1 > s0:
         raise ValueError(f"s_end_m ({s1}) must be beyond s_start_m ({s0})")
     stops = sorted(float(s) for s in stops_m if s0 < s < s1)
-    key = _cache_key(params, profile, s0, s1, float(v_start_mps), float(v_end_mps), tuple(stops), cfg)
+    key = route_cache_key(params, profile, s0, s1, float(v_start_mps), float(v_end_mps), tuple(stops), cfg)
     if use_cache and key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
@@ -496,107 +376,4 @@ def _solve_dp(params: TrainParams, lookup: RouteLookup, s0: float, s1: float, v_
     return SpeedProfile(positions_m=S, v_dp_mps=v_dp, v_max_mps=vmax, v_lim_mps=vlim, force_n=force)
 
 
-# -------------------------------------------------------------------------------------------
-# Terminal set for the time-discrete NMPC model
-
-
-@dataclass(frozen=True)
-class TerminalSet:
-    """Largest speed v_max(s) from which the train can still obey every later limit and stop.
-
-    The boundary of the DP feasible set (Fig. 7) used by the NMPC terminal constraints 11i/12k.
-    ``from_dp_and_model`` takes the lower of the space-DP boundary (eq. 10) and the same boundary
-    for the NMPC's own time-discrete model (full service brake, explicit Euler with step Δt), so
-    that a plan ending on the boundary with the brake applied can stay on it step after step.
-    """
-
-    positions_m: np.ndarray
-    v_max_mps: np.ndarray
-    end_decel_mps2: float = 1.0
-    """Slope of β = v² past the end: β = v_end² − 2·b·(s − s_end)."""
-
-    def terminal_bound(self, s) -> np.ndarray:
-        """v_max(s), m/s (zero beyond the end)."""
-        return np.interp(s, self.positions_m, self.v_max_mps, left=self.v_max_mps[0], right=0.0)
-
-    def beta(self, s) -> tuple[np.ndarray, np.ndarray]:
-        """(v_max(s)², d/ds), extended past the end (see :func:`_beta`)."""
-        if np.ndim(s) == 0:
-            b2 = self.__dict__.get("_b2")
-            if b2 is None:
-                b2 = self.v_max_mps * self.v_max_mps
-                object.__setattr__(self, "_b2", b2)
-                object.__setattr__(self, "_pos_list", self.positions_m.tolist())
-            return _beta_scalar(self._pos_list, b2, self.end_decel_mps2, float(s))
-        return _beta(self.positions_m, self.v_max_mps, self.end_decel_mps2, s)
-
-
-def discrete_braking_curves(params: TrainParams, lookup: RouteLookup, targets: list[tuple[float, float]], dt: float, v_top: float, s_min: float,
-                            brake_fraction: float = 1.0) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Full-service-brake curves of the time-discrete model ending at each (position, speed) target.
-
-    Backward in time from the target: v_k − Δt·b(v_k) = v_{k+1}, s_k = s_{k+1} − Δt·v_k (explicit
-    Euler as in eq. 6b and :class:`~vcsumo.plant.TrainPlant`), with
-    b(v) = (min(M·a_br, P_br/v) + R(v) + F_g(s))/(M·ρ).  Returns one (positions, speeds) curve
-    per target, increasing in position, up to ``v_top`` or back to ``s_min``.  Vectorised over
-    targets.  ``brake_fraction`` < 1 scales the brake force (a margin for the force lag of eq. 1c,
-    which makes the applied force trail a speed-dependent brake limit).
-    """
-    if not targets:
-        return []
-    m_eff = params.mass_kg * params.rotating_mass_factor
-    S = np.array([t[0] for t in targets], dtype=float)
-    V = np.array([t[1] for t in targets], dtype=float)
-    curves_s = [[s] for s in S]
-    curves_v = [[v] for v in V]
-    active = np.ones(len(S), dtype=bool)
-    for _ in range(200000):
-        if not active.any():
-            break
-        idx = np.flatnonzero(active)
-        s1, v1 = S[idx], V[idx]
-        g = lookup.gradient(s1)
-        tf = lookup.tunnel_factor(s1)
-
-        def decel(v):
-            return (brake_fraction * brake_force_limit(params, v) + running_resistance(params, v, tf) + gradient_force(params, g)) / m_eff
-
-        v0 = v1 + dt * decel(v1)
-        for _ in range(4):  # Newton on v0 − Δt·b(v0) − v1 = 0 (b is smooth between regimes)
-            h = 1e-4
-            f = v0 - dt * decel(v0) - v1
-            df = 1.0 - dt * (decel(v0 + h) - decel(v0)) / h
-            v0 = v0 - f / np.where(np.abs(df) > 1e-6, df, 1.0)
-        v0 = np.maximum(v0, v1)
-        s0 = s1 - dt * v0
-        S[idx], V[idx] = s0, v0
-        for j, k in enumerate(idx):
-            curves_s[k].append(s0[j])
-            curves_v[k].append(v0[j])
-        active[idx] = (v0 < v_top) & (s0 > s_min)
-    return [(np.array(cs[::-1]), np.array(cv[::-1])) for cs, cv in zip(curves_s, curves_v)]
-
-
-def terminal_set(params: TrainParams, profile: RouteProfile, dp: SpeedProfile, dt: float, stops_m: tuple[float, ...] = (), v_end_mps: float = 0.0,
-                 brake_fraction: float = 0.98, use_cache: bool = True) -> TerminalSet:
-    """Terminal set of the NMPC (11i/12k): min of the DP boundary and the time-discrete braking curves
-    (computed with ``brake_fraction`` of the service brake force, see :func:`discrete_braking_curves`)."""
-    s0, s1 = float(dp.positions_m[0]), float(dp.positions_m[-1])
-    key = "ts" + _cache_key(params, profile, s0, s1, dt, tuple(stops_m), float(v_end_mps), brake_fraction)
-    if use_cache and key in _CACHE:
-        return _CACHE[key]  # type: ignore[return-value]
-    lookup = RouteLookup(profile, params.length_m)
-    v_top = float(np.max(dp.v_lim_mps)) + 1.0
-    targets = [(s, v) for s, v in lookup.restriction_points() if s0 < s <= s1] + [(float(s), 0.0) for s in stops_m if s0 < s < s1] + [(s1, v_end_mps)]
-    curves = discrete_braking_curves(params, lookup, targets, dt, v_top, s0, brake_fraction)
-    grid = np.unique(np.concatenate([dp.positions_m] + [c[0][(c[0] >= s0) & (c[0] <= s1)] for c in curves]))
-    vmax = np.minimum(dp.terminal_bound(grid), np.minimum(lookup.speed_limit(grid), params.max_speed_ms))
-    for (cs, cv), (st, vt) in zip(curves, targets):
-        m = grid <= st
-        vmax[m] = np.minimum(vmax[m], np.interp(grid[m], cs, cv, left=cv[0], right=vt))
-    ts = TerminalSet(positions_m=grid, v_max_mps=np.maximum(vmax, 0.0), end_decel_mps2=params.service_brake_decel_mps2)
-    if use_cache:
-        _CACHE[key] = ts  # type: ignore[assignment]
-        while len(_CACHE) > _CACHE_SIZE:
-            _CACHE.popitem(last=False)
-    return ts
+__all__ = ["DPSettings", "RouteLookup", "SpeedProfile", "beta_curve", "dp_speed_profile", "route_cache_key", "route_profile_from_arrays", "straight_route_profile"]

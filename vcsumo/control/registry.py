@@ -94,8 +94,9 @@ class Nominal:
 
     controller: Any
     d_min_m: float
-    coupled_gap: Callable[[float], float]
-    """The controller's own front-to-rear spacing at a common speed v, m."""
+    coupled_gap: Callable[..., float]
+    """The controller's own front-to-rear spacing at a common speed v (and, where its reference is on
+    the route, with the follower's front at ``position_m``), m."""
 
 
 @dataclass(frozen=True)
@@ -249,12 +250,12 @@ def _build_cbc(ctx: StackContext, params) -> Nominal:
     prm = params if isinstance(params, CbcParams) else load_cbc_params(params)
     ctrl = ConsensusController(prm)
     if not prm.gap.certified:
-        return Nominal(ctrl, prm.gap.d_min_m, lambda v: prm.gap.gap_m(v, v))  # eq. 3.1 + constant time headway
+        return Nominal(ctrl, prm.gap.d_min_m, lambda v, position_m=None: prm.gap.gap_m(v, v))  # eq. 3.1 + constant time headway
     from vcsumo.control.gap_reference import SeparationGap
 
     model = SeparationModel(ctx.assumptions or load_assumptions())
     ctrl.default_gap = ref = SeparationGap(model, ctx.ego, ctx.predecessor, ctx.profile, 1.5 * ctx.step_s, prm.gap.buffer_m)
-    return Nominal(ctrl, prm.gap.d_min_m, lambda v: ref.gap_m(v, v))  # the certified spacing
+    return Nominal(ctrl, prm.gap.d_min_m, lambda v, position_m=None: ref.gap_m(v, v, position_m))  # the certified spacing (on the route's gradients)
 
 
 def _build_mpc(ctx: StackContext, params) -> Nominal:
@@ -298,7 +299,7 @@ def _build_mpc(ctx: StackContext, params) -> Nominal:
             ctx.reuse[key] = (ctx.profile, ctrl)
     s = ctrl.settings
 
-    def coupled(v: float) -> float:  # the relative braking distance of constraint 12m, at least d_des
+    def coupled(v: float, position_m: float | None = None) -> float:  # the relative braking distance of constraint 12m, at least d_des
         rel = v * v / (2.0 * s.a_follower_mps2) - v * v / (2.0 * s.a_leader_mps2)
         return max(s.d_des_m, s.d_min_m + max(rel, 0.0))
 
@@ -315,7 +316,7 @@ def _build_cruise(ctx: StackContext, params) -> Nominal:
     cbf_cfg = cbf if isinstance(cbf, CBFConfig) else load_cbf_config(cbf)
     ctrl = SwitchedCruiseController(ctx.predecessor, ctx.ego, cfg, cbf_cfg, leader_id=ctx.predecessor_id)
     d = cbf_cfg.safety_distance_m if cbf_cfg.distance == "fixed" else model_safety_distance_m(SeparationModel(ctx.assumptions or load_assumptions()), cbf_cfg)
-    return Nominal(ctrl, d, lambda v: d)
+    return Nominal(ctrl, d, lambda v, position_m=None: d)
 
 
 def _build_cbf(ctx: StackContext, params) -> tuple[Any, float]:

@@ -72,7 +72,7 @@ class FollowerStack:
     stage: FaultStage
     d_min_m: float
     """Minimum safe front-to-rear gap, m (d_min of the parameter file; with a CBF its safety distance d)."""
-    coupled_gap: Callable[[float], float]
+    coupled_gap: Callable[..., float]
     """The controller's own front-to-rear spacing at a common speed v (m/s), m."""
     uses_plans: bool
     """Whether this controller reads its predecessor's predicted trajectory (the loops then send it)."""
@@ -82,8 +82,10 @@ class FollowerStack:
     def make_step(self, obs: Observation) -> Command:
         return self.stage.make_step(obs)
 
-    def coupled_gap_m(self, v_mps: float) -> float:
-        return float(self.coupled_gap(v_mps))
+    def coupled_gap_m(self, v_mps: float, position_m: float | None = None) -> float:
+        """The spacing the stack keeps at a common speed (on the route at ``position_m`` where its gap
+        reference follows the gradients), m."""
+        return float(self.coupled_gap(v_mps) if position_m is None else self.coupled_gap(v_mps, position_m=position_m))
 
     @property
     def supervisor_interventions(self) -> int:

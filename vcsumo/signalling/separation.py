@@ -36,6 +36,7 @@ regime requires (``vc_gap``, ``mb_gap``, ``absolute_gap``) and the decelerations
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -254,6 +255,16 @@ class SeparationModel:
         return absolute_braking_gap(v_mps, a_f, self.dead_time_s) + self.assumptions.position_error_m
 
 
+def _interp(x: float, xp: list[float], fp: list[float], j: int) -> float:
+    """``np.interp`` at one point inside [xp[0], xp[-1]] with xp[j] ≤ x < xp[j + 1] given (the same
+    operations, so the same number)."""
+    if j >= len(xp) - 1:
+        return fp[-1]
+    if xp[j] == x:
+        return fp[j]
+    return (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j]) * (x - xp[j]) + fp[j]
+
+
 # -------------------------------------------------------------------------------------------
 # Braking curves along a route (gradient profile integrated, as ETCS braking curves are)
 
@@ -301,6 +312,15 @@ class RouteBraking:
         self.x = np.concatenate([starts, [starts[-1] + lengths[-1]]])
         self.g_low = g_low
         self.grade_integral = np.concatenate([[0.0], np.cumsum(g_low * lengths)])
+        # plain lists for the scalar look-ups of the per-step loops (the same floating-point
+        # operations as numpy's, so the same numbers): positions, gradients, G·∫g/ρ
+        self._x = [float(v) for v in self.x]
+        self._g = [float(v) for v in g_low]
+        self._gi = [float(v) for v in self.grade_integral]
+        self._ci = [float(v) for v in G * self.grade_integral / self.rho]
+        self._g_min = min(self._g)
+        self._floor: float | None = None
+        self._v_top = math.inf
         worst = self.brake_part(stock.max_speed_ms) + G * float(g_low.min()) / self.rho
         if worst <= 0.0 and not strongest:
             raise ValueError(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
@@ -316,17 +336,17 @@ class RouteBraking:
         return (b + self.res_low) / self.rho
 
     def _grade_integral_at(self, s: float) -> float:
-        x = self.x
+        x = self._x
         if s <= x[0]:
-            return self.g_low[0] * (s - x[0])
+            return self._g[0] * (s - x[0])
         if s >= x[-1]:
-            return float(self.grade_integral[-1]) + self.g_low[-1] * (s - x[-1])
-        return float(np.interp(s, x, self.grade_integral))
+            return self._gi[-1] + self._g[-1] * (s - x[-1])
+        return _interp(s, x, self._gi, bisect_right(x, s) - 1)
 
     def decel_at(self, s: float, v_mps: float) -> float:
         """Guaranteed deceleration with the front at s, m/s²."""
-        i = min(max(int(np.searchsorted(self.x, s, side="right")) - 1, 0), len(self.g_low) - 1)
-        return self.brake_part(v_mps) + G * float(self.g_low[i]) / self.rho
+        i = min(max(bisect_right(self._x, s) - 1, 0), len(self._g) - 1)
+        return self.brake_part(v_mps) + G * self._g[i] / self.rho
 
     def energy(self, s0: float, s1: float, v_mps: float) -> float:
         """∫ a(x) dx over [s0, s1] for braking that starts at speed v, m²/s²."""
@@ -350,16 +370,38 @@ class RouteBraking:
         b = self.brake_part(v_mps)
         need = 0.5 * v_mps * v_mps
         # F(x) = b·x + g·Gi(x)/ρ is increasing (a > 0 everywhere); invert it past x0
-        xs = self.x
-        f = b * xs + G * self.grade_integral / self.rho
+        xs, ci = self._x, self._ci
         f0 = b * x0 + G * self._grade_integral_at(x0) / self.rho
         target = f0 + need
-        if target <= f[-1]:
-            x_stop = float(np.interp(target, f, xs))
+        f_end = b * xs[-1] + ci[-1]
+        if target <= f_end:  # the breakpoint at or below the target, walking on from x0 (as np.interp(target, F(xs), xs))
+            n = len(xs) - 1
+            j = min(max(bisect_right(xs, x0) - 1, 0), n)
+            while j > 0 and b * xs[j] + ci[j] > target:
+                j -= 1
+            if b * xs[0] + ci[0] > target:
+                x_stop = xs[0]
+            else:
+                while j < n and b * xs[j + 1] + ci[j + 1] <= target:
+                    j += 1
+                x_stop = xs[n] if j == n else _interp(target, [b * xs[j] + ci[j], b * xs[j + 1] + ci[j + 1]], xs[j:j + 2], 0)
         else:  # beyond the route's end the last edge's gradient continues
-            x_stop = float(xs[-1]) + (target - float(f[-1])) / (b + G * float(self.g_low[-1]) / self.rho)
+            x_stop = xs[-1] + (target - f_end) / (b + G * self._g[-1] / self.rho)
         x_stop = max(x_stop, x0)
         return x_stop - s_m
+
+    def stopping_bound(self, v_mps: float, dead_time_s: float) -> float:
+        """An upper bound of :meth:`stopping_distance` from anywhere on the route (s ≥ 0), m: v·T + v²/(2·a)
+        with a the lowest deceleration of the route (its steepest descent; the brake part at the
+        train's top speed, or at v above it), plus a margin for rounding.  Per-step checks use it
+        to skip the integration where even this distance cannot matter."""
+        if self._floor is None:
+            self._v_top = self.stock.max_speed_ms
+            self._floor = self.brake_part(self._v_top) + G * self._g_min / self.rho
+        a = self._floor if v_mps <= self._v_top else self.brake_part(v_mps) + G * self._g_min / self.rho
+        if a <= 0.0:
+            return math.inf
+        return (v_mps * dead_time_s + v_mps * v_mps / (2.0 * a)) * (1.0 + 1e-6) + 1e-3
 
     def curve(self, dead_time_s: float):
         """``curve(s, target, target speed, v)`` for :func:`vcsumo.running_time.unhindered_run`."""

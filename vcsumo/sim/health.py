@@ -18,9 +18,10 @@ another train the margin and the position errors remain.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass, field
 
-from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, strongest_decel
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, strongest_decel
 from vcsumo.timetable import PlannedTrain
 
 GAP_TOLERANCE_M = 0.01
@@ -64,10 +65,39 @@ class HealthMonitor:
         self.model = model
         self.plans = {t.id: t for t in trains}
         self.trains: dict[str, TrainHealth] = {t.id: TrainHealth() for t in trains}
-        self.braking = {t.id: RouteBraking(model, t.stock, t.profile) for t in trains}
+        shared: dict[tuple[int, int], RouteBraking] = {}  # one per rolling stock and route (a service's trains share them)
+        self.braking = {t.id: shared.get((id(t.stock), id(t.profile))) or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile))
+                        for t in trains}
         self.relative: dict[tuple[str, str], RelativeBraking] = {}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
         self.collision_rows: list[tuple] = []
+        # the hardest service braking without resistance and grade: braking at most this is never beyond service
+        self._top_speed = {t.id: t.stock.max_speed_ms for t in trains}
+        self._limits: dict[str, tuple[float, float, float]] = {}
+        """Per train: (from, to, permitted speed): the positions of the front where the speed holds."""
+        self._starts: dict[int, list[float]] = {}
+        self._margin_m = model.margin_m
+        self._dead_s = model.dead_time_s
+        self._service_floor = {t.id: self._floor_terms(t.stock) for t in trains}
+
+    def _floor_terms(self, stock) -> tuple[float, float, float, float, float]:
+        """(hardest service brake, Davis A, B, C at the top of their box, lowest mass) of a train."""
+        box = stock.uncertainty
+        p = stock.params()
+        if box is not None:
+            p = p.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
+        m_low = stock.mass_kg if box is None else box.mass_kg.low
+        return brake_range(stock, self.model.assumptions, "service")[1], p.davis_a_n, p.davis_b_n_per_mps, p.davis_c_n_per_mps2, m_low
+
+    def service_floor(self, train_id: str, v_mps: float) -> float:
+        """A lower bound of :meth:`_service_limit` at speed v, m/s²: the hardest service brake and the
+        running resistance at the lowest speed of v's 1 m/s band + 1 (the limit is taken there or
+        above, on an up-grade or level), a hair below for rounding."""
+        high, a, b, c, m_low = self._service_floor[train_id]
+        if b < 0.0 or c < 0.0:
+            return high
+        u = float(int(v_mps)) + 1.0
+        return (high + (a + b * u + 1.5 * c * u * u) / m_low) * (1.0 - 1e-9)
 
     # ------------------------------------------------------------------------------------------
     def absolute_gap(self, train_id: str, s_m: float, v_mps: float) -> float:
@@ -82,12 +112,39 @@ class HealthMonitor:
         pl = self.plans.get(leader_id)
         if pl is None:
             return self.absolute_gap(train_id, s_m, v_mps)
+        rule = self._rule(train_id, leader_id)
+        s_l = s_m + gap_m + pl.stock.length_m  # the leader's front in the follower's route frame
+        return rule.required_gap(s_m, v_mps, s_l, leader_v_mps, self.model.dead_time_s)
+
+    def _rule(self, train_id: str, leader_id: str) -> RelativeBraking:
         rule = self.relative.get((train_id, leader_id))
         if rule is None:
             p = self.plans[train_id]
-            rule = self.relative[(train_id, leader_id)] = RelativeBraking(self.model, p.stock, pl.stock, p.profile)
-        s_l = s_m + gap_m + pl.stock.length_m  # the leader's front in the follower's route frame
-        return rule.required_gap(s_m, v_mps, s_l, leader_v_mps, self.model.dead_time_s)
+            rule = self.relative[(train_id, leader_id)] = RelativeBraking(self.model, p.stock, self.plans[leader_id].stock, p.profile)
+        return rule
+
+    def step(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, authority_m: float = math.inf,
+             driven_by_sumo: bool = True, leader_id: str | None = None, leader_v_mps: float = 0.0) -> float | None:
+        """One step of one train (as :meth:`update`), the safe separation evaluated only where it can
+        change a counter: relative braking behind ``leader_id`` (a coupled follower), else absolute.
+
+        The safe separation is at most margin + an upper bound of the stopping distance
+        (:meth:`~vcsumo.signalling.separation.RouteBraking.stopping_bound`); where the gap exceeds that by at least the smallest margin seen so
+        far (and by more than −tolerance), the margin can neither set a new minimum nor fall below
+        the separation, so the rule is not evaluated: every counter and the minimum margin are
+        the same as when it is evaluated at every step.  Returns the safe separation when the gap
+        has just fallen below it, else None."""
+        h = self.trains[train_id]
+        if gap_m < math.inf:
+            relative = leader_id is not None and leader_id in self.plans
+            br = self._rule(train_id, leader_id).follower if relative else self.braking[train_id]
+            floor = h.min_margin_m if h.min_margin_m > -GAP_TOLERANCE_M else -GAP_TOLERANCE_M
+            if s_m < 0.0 or gap_m - self._margin_m - br.stopping_bound(v_mps, self._dead_s) < floor:
+                required = (self.relative_gap(train_id, s_m, v_mps, leader_id, gap_m, leader_v_mps) if relative
+                            else self.absolute_gap(train_id, s_m, v_mps))
+                return required if self.update(train_id, dt, s_m, v_mps, accel_mps2, gap_m, required, authority_m, driven_by_sumo) else None
+        self.update(train_id, dt, s_m, v_mps, accel_mps2, math.inf, math.inf, authority_m, driven_by_sumo)
+        return None
 
     def _service_limit(self, train_id: str, s_m: float, v_mps: float) -> float:
         p = self.plans[train_id]
@@ -99,6 +156,27 @@ class HealthMonitor:
             a = strongest_decel(p.stock, self.model.assumptions, "service", v_mps + 1.0, g_high)
             h._cache[key] = a
         return a
+
+    def _speed_limit(self, train_id: str, s_m: float) -> float:
+        """The train's permitted speed with its front at s: the lowest limit under the whole train
+        (SUMO's rule, :meth:`RouteProfile.speed_limit_train`) and its top speed, m/s.  The value is
+        kept for the positions where the front and the rear stay on the same edges (1 mm inside
+        every boundary) and no turnout is near, where it cannot change."""
+        p = self.plans[train_id]
+        prof, length = p.profile, p.stock.length_m
+        limit = min(prof.speed_limit_train(s_m, length), self._top_speed[train_id])
+        starts = self._starts.get(id(prof))
+        if starts is None:
+            starts = self._starts[id(prof)] = [float(x) for x in prof.starts_m]
+        n = len(starts)
+        i1 = min(max(bisect_right(starts, s_m) - 1, 0), n - 1)
+        i0 = min(max(bisect_right(starts, max(s_m - length, 0.0)) - 1, 0), n - 1)
+        lo = max(starts[i1] if i1 > 0 else -math.inf, starts[i0] + length if i0 > 0 else -math.inf) + 1e-3
+        hi = min(starts[i1 + 1] if i1 < n - 1 else math.inf, starts[i0 + 1] + length if i0 < n - 1 else math.inf) - 1e-3
+        if any(lo - length - 1.0 <= ps <= hi + 1.0 for ps, _ in prof.point_limits):
+            lo, hi = math.inf, -math.inf
+        self._limits[train_id] = (lo, hi, limit)
+        return limit
 
     def update(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, required_gap_m: float,
                authority_m: float = math.inf, driven_by_sumo: bool = True) -> bool:
@@ -119,7 +197,8 @@ class HealthMonitor:
                     started = True
         h._below = below
         # permitted speed
-        limit = min(p.profile.speed_limit_train(s_m, p.stock.length_m), p.stock.max_speed_ms)
+        lim = self._limits.get(train_id)
+        limit = lim[2] if lim is not None and lim[0] < s_m < lim[1] else self._speed_limit(train_id, s_m)
         excess = v_mps - limit
         over = excess > self.tol_mps
         if over:
@@ -130,8 +209,12 @@ class HealthMonitor:
         h._over = over
         # braking beyond the service rate (trains SUMO drives plan with service braking)
         decel = -accel_mps2
-        h.max_decel_mps2 = max(h.max_decel_mps2, decel)
-        beyond = driven_by_sumo and decel > self._service_limit(train_id, s_m, v_mps) + DECEL_TOLERANCE_MPS2
+        if decel > h.max_decel_mps2:
+            h.max_decel_mps2 = decel
+        # the service limit is at least the hardest service brake and the resistance: below that it is not looked up
+        beyond = driven_by_sumo and decel > self._service_floor[train_id][0] + DECEL_TOLERANCE_MPS2 \
+            and decel > self.service_floor(train_id, v_mps) + DECEL_TOLERANCE_MPS2 \
+            and decel > self._service_limit(train_id, s_m, v_mps) + DECEL_TOLERANCE_MPS2
         if beyond and not h._beyond:
             h.beyond_service_events += 1
         h._beyond = beyond

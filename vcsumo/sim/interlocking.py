@@ -100,6 +100,8 @@ class MergeLocking:
                 if e.to_node in merges:
                     out.append(_Approach(e.to_node, float(t.profile.starts_m[i] + t.profile.lengths_m[i]), e.track))
             self.approaches[t.id] = out
+        self._last_approach = {tid: max((a.s_m for a in aps), default=-math.inf) for tid, aps in self.approaches.items()}
+        """The farthest junction signal on each train's route: past it nothing here concerns the train, m."""
         self.junctions: dict[str, _Junction] = {n: _Junction(n) for n in merges}
         self.gone: set[str] = set()
         self.constraints: set[tuple[str, str, str]] = set()
@@ -134,6 +136,7 @@ class MergeLocking:
         new: list[tuple[str, str, str]] = []
         self.s_m.update({tid: st[0] for tid, st in states.items()})
         for tid, (s_m, v) in states.items():
+            stop = None  # the train's stopping distance, integrated once and only for a junction within its bound
             for ap in self.approaches.get(tid, ()):
                 j = self.junctions[ap.node]
                 if tid in j.order or tid in j.cleared:
@@ -141,7 +144,11 @@ class MergeLocking:
                 if tid in j.first:
                     self._constrain(j, tid, new)  # a fixed order holds from the start: SUMO never sets the route first
                 d = ap.s_m - s_m
-                stop = self.braking[tid].stopping_distance(s_m, v, a.dead_time_s)
+                if stop is None:
+                    br = self.braking[tid]
+                    if s_m >= 0.0 and d > br.stopping_bound(v, a.dead_time_s) + v * self.lock_time_s + a.position_error_m:
+                        continue  # farther than the train can need (and so are the junctions after it; a fixed order is constrained above)
+                    stop = br.stopping_distance(s_m, v, a.dead_time_s)
                 if d <= stop + v * self.lock_time_s + a.position_error_m:  # also a train already past the signal
                     self._lock(j, tid, new)
         # a train leaves the order once its rear has cleared the junction (or it has left the network)
@@ -202,9 +209,14 @@ class MergeLocking:
         ``coupled_to``: the train's convoy predecessor when vcsumo drives it virtually coupled; the
         junction is released behind it once its front has passed it (module doc)."""
         best = math.inf
+        if s_m > self._last_approach.get(tid, -math.inf):
+            return best
         for ap in self.approaches.get(tid, ()):
             if ap.s_m < s_m:
                 continue
+            j = self.junctions[ap.node]
+            if not j.order and tid not in j.first:
+                continue  # nobody has locked it and no order fixes trains before this one
             track = ap.track
             for x in self.ahead(ap.node, tid):
                 if self.track_of[(ap.node, x)] == track:
@@ -233,6 +245,8 @@ class MergeLocking:
         """While a train crossing into this train's route at a merge still has its rear on the other
         track, the gap that matters runs to the junction (the fouling point), not to where SUMO
         projects that rear: the distance from the front to the junction, m (None: no such merge)."""
+        if s_m > self._last_approach.get(tid, -math.inf):
+            return None
         length = self.plans[leader].stock.length_m if leader in self.plans else 0.0
         for ap in self.approaches.get(tid, ()):
             if ap.s_m < s_m:

@@ -29,26 +29,30 @@ from __future__ import annotations
 
 import math
 import shutil
+from bisect import bisect_right
 import time
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable
 
 import pandas as pd
 
-from vcsumo.errors import SumoError, VcsumoError
+from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
-from vcsumo.results import write_csv, write_json
+from vcsumo.results import write_json
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.regimes import REGIMES, Regime
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.health import HealthMonitor
 from vcsumo.sim.network import BuiltNetwork
+from vcsumo.sim.records import CsvStream
+from vcsumo.sim.snapshot import Driver, Snapshot, StepTrains, TrainState  # noqa: F401 (Snapshot, TrainState: the drivers' types, also from here)
+from vcsumo.sim.run_results import TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, SimulationResult, collect_results
 from vcsumo.sim.interlocking import MergeLocking
 from vcsumo.sim.supervision import BrakingCurveSupervisor
+from vcsumo.sim.route_leaders import RouteLeaders
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
-from vcsumo.sim.sumo_io import read_sumo_log, write_sumocfg
+from vcsumo.sim.sumo_io import write_sumocfg
 from vcsumo.timetable import PlannedTrain, routes_xml
 
 
@@ -58,51 +62,6 @@ class MeasuringPoint:
     label: str
     section: str
     km: float
-
-
-@dataclass(frozen=True)
-class TrainState:
-    """What the loop knows about a train after a step (SI units; passed to drivers)."""
-
-    id: str
-    time_s: float
-    s_m: float
-    """Front position along the train's own route, m."""
-    section: str
-    km: float
-    speed_mps: float
-    accel_mps2: float
-    edge: str
-    leader: str | None
-    gap_m: float
-    """Front-to-rear distance to the train ahead on the route, m (inf if none within look-ahead)."""
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    time_s: float
-    step_s: float
-    trains: dict[str, TrainState]
-    junction_authority_m: dict[str, float] = field(default_factory=dict)
-    """Distance from a convoy follower's front to the end of movement authority a merging junction
-    ahead sets (approach locking, :meth:`vcsumo.sim.interlocking.MergeLocking.authority_distance`
-    behind its predecessor), m; absent: none."""
-
-
-class Driver(Protocol):
-    """A vcsumo driver (VC controllers + safety filter).  It never sees libsumo."""
-
-    def make_step(self, snapshot: Snapshot) -> dict[str, float]:
-        """Speed commands (m/s) for the trains it drives this step; other trains stay with SUMO."""
-        ...
-
-    def predecessor_of(self, train_id: str) -> str | None:
-        """The train a follower is coupled behind (None: not a convoy follower)."""
-        ...
-
-    def stop_releases(self) -> set[str]:
-        """Trains whose stop (dwell) ends now, e.g. a follower leaving with its convoy."""
-        ...
 
 
 @dataclass
@@ -132,7 +91,9 @@ class Scenario:
     supervise: bool = True
     """Braking-curve supervision of the trains SUMO drives (off only to show what SUMO alone does)."""
     full_outputs: bool = True
-    """Write fcd and rail-signal outputs and the trajectory CSV (off for bisection probes)."""
+    """Write the trajectory CSV and SUMO's rail-signal output (off for bisection probes and batches)."""
+    sumo_fcd: bool = False
+    """Also write SUMO's own fcd output (fcd.xml, the same 1 s samples as trajectories.csv; only with full_outputs)."""
     trace_speeds: bool = False
     """Keep every train's (position, speed) at every step in the result (hindrance checks)."""
     additional_files: list[Path] = field(default_factory=list)
@@ -151,15 +112,8 @@ class Scenario:
             self.assumptions = self.assumptions.model_copy(update={"fixed_time_s": self.fixed_time_s})
 
 
-@dataclass
-class SimulationResult:
-    trajectories: pd.DataFrame
-    passages: pd.DataFrame
-    stop_events: pd.DataFrame
-    trains: pd.DataFrame
-    summary: dict
-    speed_traces: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
-    """train -> (route positions m, speeds m/s) at every step, when Scenario.trace_speeds."""
+LOOP_PARTS = ("sumo", "observation", "supervision", "health", "recording", "driver", "io")
+"""Parts of the loop whose CPU time :func:`simulate` accounts (``summary["loop_cpu_s"]``)."""
 
 
 @dataclass
@@ -178,10 +132,29 @@ class _Track:
     mp_s: dict[str, float] = field(default_factory=dict)
     departed_at: float = math.nan
     arrived_at: float = math.nan
+    starts: list[float] = field(default_factory=list)
+    """Where each edge of the route starts, m (plain floats for the per-step look-ups)."""
+    tunnels: bool = True
+    """The route has a tunnel factor other than 1 somewhere (else the vType never changes)."""
+    edges: list[str] = field(default_factory=list)
+    n_edges: int = 0
+    tf_from: float = math.inf
+    tf_to: float = -math.inf
+    """The stretch of the route around the front with one tunnel factor (the last one looked up), m."""
 
 
 def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] | None = None) -> SimulationResult:
-    """Run a scenario in SUMO, writing SUMO outputs and vcsumo's CSVs into ``out``."""
+    """Run a scenario in SUMO, writing SUMO outputs and vcsumo's CSVs into ``out``.
+
+    Per step the work is proportional to the trains running: SUMO keeps them in one list
+    (:meth:`SumoBackend.running`), their values are read in one pass, the train ahead beyond
+    SUMO's look-ahead is found from the route's edges, and the trajectory rows go to disk in chunks
+    (:class:`vcsumo.sim.records.CsvStream`).  The CPU time of each part of the loop (SUMO stepping,
+    observation, supervision, health, recording, driver, I/O) is in ``summary["loop_cpu_s"]``.
+    """
+    clock = time.thread_time
+    cpu = dict.fromkeys(LOOP_PARTS, 0.0)
+    c_mark = clock()
     t_wall = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     netdir = out / "network"
@@ -202,12 +175,34 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     args = sumo_args(
         netdir / "line.net.xml", out / "routes.rou.xml", [netdir / "stations.add.xml", *scn.additional_files], out, scn.step_length_s, end,
         moving_block=scn.rules.moving_block, seed=scn.seed, fcd_period=scn.record_period_s, full_outputs=scn.full_outputs,
+        fcd=scn.full_outputs and scn.sumo_fcd,
     ) + ["--begin", str(begin)]
     write_sumocfg(out / "scenario.sumocfg", args, out)
 
     plans = {t.id: t for t in scn.trains}
+    route_starts: dict[int, list[float]] = {}
+
+    def starts_of(plan: PlannedTrain) -> list[float]:
+        key = id(plan.profile)
+        if key not in route_starts:
+            route_starts[key] = [float(x) for x in plan.profile.starts_m]
+        return route_starts[key]
+
+    lengths = {t.id: t.stock.length_m for t in scn.trains}
+    max_length = max(lengths.values())
+    portals: dict[int, list[float]] = {}
+
+    def tunnel_stretch(prof, s_m: float) -> tuple[float, float]:
+        """[from, to) of the route around s where the tunnel factor does not change, m."""
+        key = id(prof)
+        if key not in portals:
+            tfs = [float(x) for x in prof.tunnel_factors]
+            portals[key] = [float(prof.starts_m[i]) for i in range(1, len(tfs)) if tfs[i] != tfs[i - 1]]
+        marks = portals[key]
+        k = bisect_right(marks, s_m)
+        return (marks[k - 1] if k > 0 else -math.inf), (marks[k] if k < len(marks) else math.inf)
     state: dict[str, _Track] = {}
-    traj_rows: list[tuple] = []
+    traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS) if scn.full_outputs else None
     pass_rows: list[tuple] = []
     collisions: list[tuple[float, str, str]] = []
     teleports: list[tuple[float, str]] = []
@@ -222,20 +217,41 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
         convoys = {t.id: scn.driver.predecessor_of(t.id) for t in scn.trains} if scn.driver is not None else {}
         locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
-        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking)
+        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking, braking=health.braking)
+    driver = scn.driver
+    if driver is not None and scn.full_outputs and hasattr(driver, "stream_records"):
+        driver.stream_records(out)  # the driver's per-step records go to disk as the run goes
+    stop_releases = getattr(driver, "stop_releases", lambda: ())  # a driver that never ends a stop need not say so
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}
+    steps = train_steps = 0
+    progress_every = max(dt, (end - begin) / 500.0)
+    next_progress = begin
+    lookahead = scn.lookahead_m
     label = f"{scn.line.path} ({scn.regime}, network {scn.network.net_file})"
-    with SumoBackend(args, error_log=out / "sumo_errors.log", label=label) as sim:
+    c = clock()
+    cpu["io"] += c - c_mark
+    c_mark = c
+    stopped_at = (lambda t_s: progress(t_s - begin, end - begin)) if progress is not None else None  # noqa: E731
+    with SumoBackend(args, error_log=out / "sumo_errors.log", label=label, on_failure=stopped_at) as sim:
         t = sim.time
+        ahead_on_route = RouteLeaders(sim, max_length, lookahead)
         while True:
+            # ---------------------------------------------------------------- SUMO
             t0 = time.perf_counter()
             t = sim.step()
             timing["sumo_s"] += time.perf_counter() - t0
+            steps += 1
+            c = clock()
+            cpu["sumo"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- observation
             for vid in sim.departed():
-                tr = _Track(plan=plans[vid], departed_at=t)
+                prof = plans[vid].profile
+                tr = _Track(plan=plans[vid], departed_at=t, starts=starts_of(plans[vid]), tunnels=bool((prof.tunnel_factors != 1.0).any()),
+                            edges=prof.edges, n_edges=len(prof.edges))
                 for mp in scn.measuring_points:
                     try:
                         s_mp = tr.plan.profile.s_of(mp.section, mp.km)
@@ -248,121 +264,160 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             for vid in arrived_now:
                 if vid in state:
                     state[vid].arrived_at = t
-            active = [v for v in sim.train_ids() if v in state]
-            snap_trains: dict[str, TrainState] = {}
-            caps: dict[str, float] = {}
-            obs = {vid: sim.observe(vid) for vid in active}
-            others = [(vid, o.edge, o.lane_pos_m, plans[vid].stock.length_m) for vid, o in obs.items()]
-            prev_pos = {}
-            for vid in active:  # every route position of this step first: the gap checks below read the train ahead's
-                tr, ob = state[vid], obs[vid]
-                prof = tr.plan.profile
-                prev_pos[vid] = tr.s
-                if not ob.edge.startswith(":") and 0 <= ob.route_index < len(prof.edges) and prof.edges[ob.route_index] == ob.edge:
-                    tr.s = float(prof.starts_m[ob.route_index]) + ob.lane_pos_m
-                    tr.sync_s, tr.sync_odo = tr.s, ob.odometer_m
-                else:
-                    tr.s = tr.sync_s + (ob.odometer_m - tr.sync_odo)
-            for vid in active:
+            active = [v for v in sim.running() if v in state]
+            train_steps += len(active)
+            observed = sim.observe_all(active)  # (edge, lane pos, speed, accel, odometer, route index)
+            obs = dict(zip(active, observed))
+            leads = sim.leaders(active, lookahead)
+            ahead_on_route.begin_step(active, observed, lengths)
+            rows: list[tuple] = []  # (vid, track, s, speed, accel, edge, lead, gap, controlled)
+            prev_pos = []
+            for vid, (edge, lane_pos, _v, _a, odo, ridx) in zip(active, observed):  # every route position first: the gap checks read the train ahead's
                 tr = state[vid]
-                ob = obs[vid]
-                prof = tr.plan.profile
-                prev_s = prev_pos[vid]
-                if math.isnan(tr.s):
+                prev_pos.append(tr.s)
+                if 0 <= ridx < tr.n_edges and tr.edges[ridx] == edge:  # on its route's edge (not inside a junction)
+                    tr.s = tr.sync_s = tr.starts[ridx] + lane_pos
+                    tr.sync_odo = odo
+                else:
+                    tr.s = tr.sync_s + (odo - tr.sync_odo)
+            for vid, (edge, lane_pos, speed, accel, odo, ridx), lead, prev_s in zip(active, observed, leads, prev_pos):
+                tr = state[vid]
+                s_now = tr.s
+                if s_now != s_now:  # nan: not yet on its route
                     continue
-                # tunnel drag: switch the vType when the front passes a portal
-                tf = prof.tunnel_factor_at(tr.s)
-                if abs(tf - tr.tf) > 1e-9:
-                    sim.set_type(vid, tr.plan.stock.vtype_id(tf))
-                    tr.tf = tf
+                # tunnel drag: switch the vType when the front passes a portal (looked up off the stretch last found)
+                if tr.tunnels and not tr.tf_from <= s_now < tr.tf_to:
+                    tf = tr.plan.profile.tunnel_factor_at(s_now)
+                    if abs(tf - tr.tf) > 1e-9:
+                        sim.set_type(vid, tr.plan.stock.vtype_id(tf))
+                        tr.tf = tf
+                    tr.tf_from, tr.tf_to = tunnel_stretch(tr.plan.profile, s_now)
                 # measuring points
-                if not math.isnan(prev_s):
-                    for label, s_mp in tr.mp_s.items():
-                        if prev_s < s_mp <= tr.s:
-                            frac = (s_mp - prev_s) / max(tr.s - prev_s, 1e-9)
-                            pass_rows.append((label, vid, t - dt + frac * dt, ob.speed_mps))
-                lead = sim.leader(vid, scn.lookahead_m)
-                if lead is None and len(others) > 1:
-                    lead = sim.route_leader(vid, others, scn.lookahead_m)
+                if tr.mp_s and prev_s == prev_s:
+                    for mp_label, s_mp in tr.mp_s.items():
+                        if prev_s < s_mp <= s_now:
+                            frac = (s_mp - prev_s) / max(s_now - prev_s, 1e-9)
+                            pass_rows.append((mp_label, vid, t - dt + frac * dt, speed))
+                if lead is None and len(active) > 1:  # beyond SUMO's look-ahead: the train ahead on the route
+                    lead = ahead_on_route.leader(vid, s_now, tr.edges, tr.starts, ridx)
                 gap = lead[1] if lead else math.inf
-                controlled = tr.controlled and scn.driver is not None
-                if scn.driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
+                controlled = tr.controlled and driver is not None
+                if driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:
                     # before the driver's first decision a follower behind its own predecessor counts as coupled
-                    controlled = scn.driver.predecessor_of(vid) == lead[0]
+                    controlled = driver.predecessor_of(vid) == lead[0]
                 if lead is not None and locking is not None and lead[0] in state and not controlled:
                     # absolute braking stops short of the fouling point; relative braking keeps to SUMO's gap to
                     # the rear projected onto this route (the leader's body clears the junction as that rear moves on)
-                    g = locking.fouling_gap(vid, tr.s, lead[0], state[lead[0]].s)
+                    g = locking.fouling_gap(vid, s_now, lead[0], state[lead[0]].s)
                     if g is not None:
                         gap = g
-                tr.min_gap = min(tr.min_gap, gap)
-                perm = None
-                if supervisor is not None:
-                    supervisor.observe(vid, t, ob.odometer_m)
-                    if not controlled:
-                        perm = supervisor.permitted(vid, t, tr.s, ob.speed_mps, gap, lead[0] if lead else None)
-                if lead is not None and lead[0] in obs and controlled:
-                    required = health.relative_gap(vid, tr.s, ob.speed_mps, lead[0], gap, obs[lead[0]].speed_mps)
-                else:
-                    required = health.absolute_gap(vid, tr.s, ob.speed_mps)
-                if health.update(vid, dt, tr.s, ob.speed_mps, ob.accel_mps2, gap, required, perm.authority_m if perm else math.inf, not controlled):
-                    sec, km_v = prof.km_at(tr.s)  # the gap just fell below the safe separation
-                    violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), ob.speed_mps, gap, required, controlled))
-                # a standing train is left to SUMO (commanding it to move would abort its stop); the
-                # cap takes it from the step it moves
-                if perm is not None and perm.speed_mps < ob.speed_mps + 2.0 and not (ob.speed_mps < 0.01 and perm.speed_mps > 0.0):
-                    caps[vid] = perm.speed_mps
+                if gap < tr.min_gap:
+                    tr.min_gap = gap
                 if scn.trace_speeds:
                     tr_s, tr_v = traces.setdefault(vid, ([], []))
-                    tr_s.append(tr.s)
-                    tr_v.append(ob.speed_mps)
-                section, km = prof.km_at(tr.s)
-                snap_trains[vid] = TrainState(vid, t, tr.s, section, km, ob.speed_mps, ob.accel_mps2, ob.edge, lead[0] if lead else None, gap)
+                    tr_s.append(s_now)
+                    tr_v.append(speed)
+                rows.append((vid, tr, s_now, speed, accel, edge, lead, gap, controlled))
+            c = clock()
+            cpu["observation"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- supervision (braking curves)
+            perms: list = [None] * len(rows)
+            if supervisor is not None:
+                for i, (vid, tr, s_now, speed, _a, _e, lead, gap, controlled) in enumerate(rows):
+                    supervisor.observe(vid, t, obs[vid][4])
+                    if not controlled:
+                        perms[i] = supervisor.permitted(vid, t, s_now, speed, gap, lead[0] if lead else None)
+            c = clock()
+            cpu["supervision"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- health
+            caps: dict[str, float] = {}
+            held: dict[str, float] = {}  # trains standing at their stop, left to SUMO: their permitted speed
+            for i, (vid, tr, s_now, speed, accel, _e, lead, gap, controlled) in enumerate(rows):
+                perm = perms[i]
+                coupled = lead is not None and controlled and lead[0] in obs  # relative braking behind the train ahead
+                required = health.step(vid, dt, s_now, speed, accel, gap, perm.authority_m if perm else math.inf, not controlled,
+                                       lead[0] if coupled else None, obs[lead[0]][2] if coupled else 0.0)
+                if required is not None:
+                    sec, km_v = tr.plan.profile.km_at(s_now)  # the gap just fell below the safe separation
+                    violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))
+                # a train standing at its stop is left to SUMO (commanding it to move would abort the stop); the cap
+                # takes it from the step it moves (one standing elsewhere stays capped: SUMO would start it past its curve)
+                if perm is not None and perm.speed_mps < speed + 2.0:
+                    if speed < 0.01 and perm.speed_mps > 0.0 and sim.at_stop(vid):
+                        held[vid] = perm.speed_mps
+                    else:
+                        caps[vid] = perm.speed_mps
+            c = clock()
+            cpu["health"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- supervision: merges, caps
             if locking is not None:  # approach locking at merges (used by the supervision from the next step)
                 locking.arrived(arrived_now)
-                for sig, train, foe in locking.update({vid: (ts.s_m, ts.speed_mps) for vid, ts in snap_trains.items()}):
+                for sig, train, foe in locking.update({r[0]: (r[2], r[3]) for r in rows}):
                     sim.add_constraint(sig, train, sig, foe)
-            emergency_now = set(sim.emergency_stops())
-            for vid in active:
-                if vid in state:
-                    tr = state[vid]
-                    if vid in emergency_now and not tr.in_emergency:
-                        tr.emergencies += 1
-                    tr.in_emergency = vid in emergency_now
-            touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
-            for collider, victim in touching - touching_before:  # one collision per episode
-                collisions.append((t, collider, victim))
-                health.collision(t, collider, victim, obs[collider].speed_mps if collider in obs else 0.0, obs[victim].speed_mps if victim in obs else 0.0)
-            touching_before = touching
-            for vid in sim.teleports():
-                teleports.append((t, vid))
-            if t + 1e-9 >= next_record:
-                for ts in snap_trains.values():
-                    traj_rows.append((ts.time_s, ts.id, ts.section, round(ts.km, 6), round(ts.s_m, 3), ts.speed_mps, ts.accel_mps2,
-                                      None if math.isinf(ts.gap_m) else round(ts.gap_m, 3), ts.leader, ts.edge))
-                next_record += scn.record_period_s
-            for vid, ts in snap_trains.items():
+            for r in rows:
+                vid = r[0]
                 cap = caps.get(vid)
-                if cap is not None and not state[vid].controlled:
+                if cap is not None and not r[1].controlled:
                     sim.set_speed(vid, cap)
                     capped.add(vid)
                     authority_caps += 1
                 elif vid in capped:
                     sim.release(vid)
                     capped.discard(vid)
-            if scn.driver is not None:
+            c = clock()
+            cpu["supervision"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- health: SUMO's events
+            emergency_now = set(sim.emergency_stops())
+            for vid in active:
+                tr = state[vid]
+                if vid in emergency_now and not tr.in_emergency:
+                    tr.emergencies += 1
+                tr.in_emergency = vid in emergency_now
+            touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
+            for collider, victim in touching - touching_before:  # one collision per episode
+                collisions.append((t, collider, victim))
+                health.collision(t, collider, victim, obs[collider][2] if collider in obs else 0.0, obs[victim][2] if victim in obs else 0.0)
+            touching_before = touching
+            for vid in sim.teleports():
+                teleports.append((t, vid))
+            c = clock()
+            cpu["health"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- recording
+            if t + 1e-9 >= next_record:
+                if traj is not None:
+                    recs = []
+                    for vid, tr, s_now, speed, accel, edge, lead, gap, _c in rows:
+                        section, km = tr.plan.profile.km_at(s_now)
+                        recs.append((t, vid, section, round(km, 6), round(s_now, 3), speed, accel, None if gap == math.inf else round(gap, 3),
+                                     lead[0] if lead else None, edge))
+                    traj.extend(recs)
+                next_record += scn.record_period_s
+            c = clock()
+            cpu["recording"] += c - c_mark
+            c_mark = c
+            # ---------------------------------------------------------------- driver
+            if driver is not None:
                 t0 = time.perf_counter()
+                snap = StepTrains(t, {r[0]: (r[1].plan.profile, r[2], r[3], r[4], r[5], r[6][0] if r[6] else None, r[7]) for r in rows})
                 ends = {}
                 if locking is not None:  # what the approach locking allows each convoy follower at the merges ahead
-                    for vid, ts in snap_trains.items():
-                        pred = scn.driver.predecessor_of(vid)
-                        d_ma = locking.authority_distance(vid, ts.s_m, coupled_to=pred) if pred is not None else math.inf
-                        if math.isfinite(d_ma):
-                            ends[vid] = d_ma
-                commands = scn.driver.make_step(Snapshot(t, dt, snap_trains, ends))
+                    for r in rows:
+                        pred = driver.predecessor_of(r[0])
+                        d_ma = locking.authority_distance(r[0], r[2], coupled_to=pred) if pred is not None else math.inf
+                        if d_ma < math.inf:
+                            ends[r[0]] = d_ma
+                commands = driver.make_step(Snapshot(t, dt, snap, ends))
                 timing["controller_s"] += time.perf_counter() - t0
-                for vid in scn.driver.stop_releases():
+                for vid in stop_releases():
                     sim.resume(vid)
+                    if vid in held:  # off its stop now: its curve holds from this step (SUMO would start it at full acceleration)
+                        sim.set_speed(vid, held[vid])
+                        capped.add(vid)
                 for vid, v_cmd in commands.items():
                     tr = state.get(vid)
                     if tr is None:
@@ -372,135 +427,44 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         sim.set_speed_mode(vid, SPEED_MODE_VC_FOLLOWER)
                         tr.controlled = True
                     sim.set_speed(vid, max(0.0, v_cmd))
-                for vid, tr in state.items():
-                    if tr.controlled and vid not in commands and vid in snap_trains:
+                for vid in active:
+                    tr = state[vid]
+                    if tr.controlled and vid not in commands and vid in snap:
                         sim.release(vid)
                         tr.controlled = False
                         tr.released_s = t
                         if supervisor is not None:  # supervised from this very step: no step of SUMO alone
-                            ts = snap_trains[vid]
+                            ts = snap[vid]
                             perm = supervisor.permitted(vid, t, ts.s_m, ts.speed_mps, ts.gap_m, ts.leader)
                             if perm.speed_mps < ts.speed_mps + 2.0:
                                 sim.set_speed(vid, perm.speed_mps)
                                 capped.add(vid)
-                    elif not tr.controlled and vid not in commands and vid in snap_trains and math.isnan(tr.released_s) and tr.departed_at < t:
+                    elif not tr.controlled and vid not in commands and vid in snap and math.isnan(tr.released_s) and tr.departed_at < t:
                         tr.released_s = t  # the driver decided not to drive it
-            if progress is not None:
+                c = clock()
+                cpu["driver"] += c - c_mark
+                c_mark = c
+            if progress is not None and t >= next_progress:
                 progress(t - begin, end - begin)
+                next_progress = t + progress_every
             if sim.min_expected() == 0 or t >= end - 1e-9:
                 break
         sim_end = t
+    if progress is not None:
+        progress(sim_end - begin, end - begin)
     t_io = time.perf_counter()
+    if traj is not None:
+        traj.close()
     pd.DataFrame(violation_rows, columns=["time_s", "train", "leader", "section", "km", "speed_mps", "gap_m", "safe_separation_m", "driven_by_vcsumo"]).to_csv(out / "violations.csv", index=False)
     pd.DataFrame(health.collision_rows, columns=["time_s", "collider", "victim", "impact_speed_kmh"]).to_csv(out / "collisions.csv", index=False)
     extra = {
         "fixed_time_s": scn.assumptions.fixed_time_s, "authority_caps": authority_caps, "assumptions": scn.assumptions.name,
         "sumo_step_time_s": round(timing["sumo_s"], 3), "controller_time_s": round(timing["controller_s"], 3),
+        "steps": steps, "train_steps": train_steps,
     }
-    result = _collect(scn, out, state, health, traj_rows, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
+    result = collect_results(scn, out, state, health, traj.path if traj is not None else None, pass_rows, collisions, teleports, sim_end, t_io - t_wall, extra)
     result.speed_traces = traces
+    cpu["io"] += clock() - c_mark
+    result.summary["loop_cpu_s"] = {k: round(v, 3) for k, v in cpu.items()}
+    write_json(out / "summary.json", result.summary)
     return result
-
-
-def _parse_xml_rows(path: Path, tag: str) -> list[dict]:
-    if not path.is_file():
-        return []
-    try:
-        return [el.attrib for el in ET.parse(path).getroot().iter(tag)]
-    except ET.ParseError as exc:
-        raise SumoError(f"{path}: SUMO output is not valid XML ({exc})") from None
-
-
-def _collect(scn: Scenario, out: Path, state: dict[str, _Track], health: HealthMonitor, traj_rows, pass_rows, collisions, teleports, sim_end: float,
-             wall: float, extra: dict | None = None) -> SimulationResult:
-    t_io = time.perf_counter()
-    traj = pd.DataFrame(traj_rows, columns=["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"])
-    passages = pd.DataFrame(pass_rows, columns=["measuring_point", "train", "time_s", "speed_mps"])
-    # stop events from SUMO's stop output
-    plat_station = {p.id: p.station_id for p in scn.network.topology.platforms.values()}
-    plat_of_lane = {f"{p.edge}_0": p.id for p in scn.network.topology.platforms.values()}
-    sched = {(t.id, s.platform): s for t in scn.trains for s in t.stops}
-    stop_rows = []
-    for r in _parse_xml_rows(out / "stops.xml", "stopinfo"):
-        tid = r.get("id")
-        plat = r.get("busStop") or r.get("trainStop") or plat_of_lane.get(r.get("lane", ""), "")
-        if not plat:
-            continue  # a stop at the end of a route, not at a platform
-        s = sched.get((tid, plat))
-        arr, dep = float(r.get("started", "nan")), float(r.get("ended", "nan"))
-        stop_rows.append({
-            "train": tid, "station": plat_station.get(plat, plat), "platform": plat, "arrival_s": arr, "departure_s": dep,
-            "dwell_s": dep - arr, "scheduled_arrival_s": s.arrival_s if s else None, "scheduled_departure_s": s.departure_s if s else None,
-            "arrival_delay_s": (arr - s.arrival_s) if s and s.arrival_s is not None else None,
-            "departure_delay_s": (dep - s.departure_s) if s and s.departure_s is not None else None,
-        })
-    stops = pd.DataFrame(stop_rows, columns=["train", "station", "platform", "arrival_s", "departure_s", "dwell_s", "scheduled_arrival_s", "scheduled_departure_s", "arrival_delay_s", "departure_delay_s"])
-    trip = {r["id"]: r for r in _parse_xml_rows(out / "tripinfo.xml", "tripinfo")}
-    scheduled = {t.id: [x.platform for x in t.stops] + ([t.final_stop.platform] if t.final_stop is not None else []) for t in scn.trains}
-    served = stops.groupby(["train", "platform"]).size().to_dict() if len(stops) else {}
-    warnings = read_sumo_log(out / "sumo_errors.log")
-    rows = []
-    for t in scn.trains:
-        tr = state.get(t.id)
-        ti = trip.get(t.id, {})
-        arrival = float(ti["arrival"]) if ti.get("arrival") not in (None, "-1", "-1.00") else math.nan
-        if ti and not math.isnan(arrival) and t.final_stop is not None:
-            # the train arrives at the platform when it stops there (SUMO removes it after the 1 s stop)
-            st = stops[(stops.train == t.id) & (stops.platform == t.final_stop.platform)]
-            if len(st):
-                arrival = float(st.arrival_s.iloc[0])
-        rows.append({
-            "train": t.id, "service": t.service, "rolling_stock": t.stock.name, "direction": t.direction,
-            "scheduled_departure_s": t.depart_s, "departure_s": float(ti["depart"]) if ti else (tr.departed_at if tr else math.nan),
-            "departure_delay_s": float(ti["departDelay"]) if ti else math.nan, "arrival_s": arrival,
-            "scheduled_arrival_s": t.scheduled_arrival_s,
-            "arrival_delay_s": (arrival - t.scheduled_arrival_s) if t.scheduled_arrival_s is not None and not math.isnan(arrival) else None,
-            "running_time_s": (arrival - float(ti["depart"])) if ti and not math.isnan(arrival) else math.nan,
-            "route_length_m": float(ti["routeLength"]) if ti else math.nan,
-            "time_loss_s": float(ti["timeLoss"]) if ti else math.nan,
-            "min_gap_m": (tr.min_gap if tr and not math.isinf(tr.min_gap) else None),
-            "stops_scheduled": len(scheduled[t.id]), "stops_served": sum(1 for pl in scheduled[t.id] if served.get((t.id, pl), 0)),
-            **health.train_row(t.id),
-            "gap_violations": health.trains[t.id].separation_violations,
-            "emergency_brakes": tr.emergencies if tr else 0,
-            "arrived": bool(ti) and not math.isnan(arrival),
-        })
-    trains_df = pd.DataFrame(rows)
-    trains_df["stops_skipped"] = trains_df["stops_scheduled"] - trains_df["stops_served"]
-    gaps = [tr.min_gap for tr in state.values() if not math.isinf(tr.min_gap)]
-    margins = trains_df["min_margin_m"].dropna()
-    summary = {
-        "line": scn.line.name, "regime": scn.regime, "step_length_s": scn.step_length_s, "seed": scn.seed,
-        "trains": len(scn.trains), "trains_arrived": int(trains_df["arrived"].sum()),
-        "min_gap_m": min(gaps) if gaps else None,
-        "min_margin_m": float(margins.min()) if len(margins) else None,
-        "gap_violations": int(trains_df["gap_violations"].sum()),
-        "below_separation_time_s": round(float(trains_df["below_separation_time_s"].sum()), 2),
-        "collisions": len(collisions), "max_impact_kmh": float(trains_df["max_impact_kmh"].max()) if len(trains_df) else 0.0,
-        "stops_scheduled": int(trains_df["stops_scheduled"].sum()), "stops_served": int(trains_df["stops_served"].sum()),
-        "stops_skipped": int(trains_df["stops_skipped"].sum()),
-        "overspeed_events": int(trains_df["overspeed_events"].sum()), "overspeed_max_kmh": float(trains_df["overspeed_max_kmh"].max()) if len(trains_df) else 0.0,
-        "beyond_service_brakings": int(trains_df["beyond_service_brakings"].sum()),
-        "max_decel_mps2": float(trains_df["max_decel_mps2"].max()) if len(trains_df) else 0.0,
-        "authority_overruns": int(trains_df["authority_overruns"].sum()),
-        "sumo_emergency_stops": warnings.emergency_stops, "sumo_stop_warnings": warnings.stop_warnings,
-        "sumo_emergency_brakings": warnings.emergency_braking, "sumo_collision_warnings": warnings.collisions,
-        "emergency_brakes": int(trains_df["emergency_brakes"].sum()), "teleports": len(teleports),
-        "simulated_until_s": sim_end, **(extra or {}),
-    }
-    summary["healthy"] = bool(
-        summary["trains_arrived"] == summary["trains"] and summary["stops_skipped"] == 0 and summary["overspeed_events"] == 0
-        and summary["beyond_service_brakings"] == 0 and summary["authority_overruns"] == 0 and summary["sumo_emergency_stops"] == 0
-        and summary["collisions"] == 0 and summary["gap_violations"] == 0 and summary["teleports"] == 0 and summary["sumo_stop_warnings"] == 0
-        and summary["sumo_emergency_brakings"] == 0
-    )
-    if scn.full_outputs:
-        traj.to_csv(out / "trajectories.csv", index=False)
-    passages.to_csv(out / "passages.csv", index=False)
-    write_csv(stops, out / "stop_events.csv")
-    write_csv(trains_df, out / "summary.csv")
-    io = time.perf_counter() - t_io
-    summary["io_time_s"] = round(io, 3)
-    summary["wall_time_s"] = round(wall + io, 3)
-    write_json(out / "summary.json", summary)
-    return SimulationResult(traj, passages, stops, trains_df, summary)

@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import functools
 import math
+from bisect import bisect_left, insort
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from vcsumo.errors import SumoError
 from vcsumo.sim.sumo_paths import sumo_binary, sumo_home
@@ -70,22 +72,39 @@ def _traci(fn):
 class SumoBackend:
     """A running SUMO simulation (libsumo), used as ``with SumoBackend(args) as sim: ...``.
 
-    ``label`` names the run in error messages (e.g. the scenario and network files).
+    ``label`` names the run in error messages (e.g. the scenario and network files); ``on_failure``
+    is called with the time of the last step completed when the run ends by an exception.
     """
 
-    def __init__(self, args: list[str], error_log: Path | None = None, label: str = ""):
+    def __init__(self, args: list[str], error_log: Path | None = None, label: str = "", on_failure: Callable[[float], None] | None = None):
         self.args = list(args)
+        self.on_failure = on_failure
         self.error_log = error_log
         self.label = label
         self._ls = None
         self._time = math.nan
+        self._running: list[str] = []
+        self._departed: list[str] = []
+        self._arrived: list[str] = []
+        self._min_gap: dict[str, float] = {}
+        self._edge_length: dict[str, float] = {}
+
+    def translate_failure(self, where: str, exc: Exception) -> Exception | None:
+        """libsumo's exception (or a call after close) as one :class:`SumoError` with context; None for
+        any other exception (to be raised as it is)."""
+        ls = self._ls
+        if ls is None or isinstance(exc, (ls.TraCIException, ls.FatalTraCIError)):
+            return self._failure(where, exc)
+        return None
 
     # ----------------------------------------------------------------------------- lifecycle
     def __enter__(self) -> "SumoBackend":
         self.start()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is not None and self.on_failure is not None and not math.isnan(self._time):
+            self.on_failure(self._time)  # where the run stopped (before the error ends it)
         self.close()
 
     def start(self) -> None:
@@ -102,6 +121,18 @@ class SumoBackend:
             where = f"{self.label}: " if self.label else ""
             raise SumoError(f"{where}SUMO failed to start: {self._errors() or _one_line(exc)}") from None
         self._time = libsumo.simulation.getTime()
+        # the per-train getters straight from the extension module (libsumo's Python wrappers only
+        # forward their arguments: one call layer less for every value of every train at every step)
+        raw = getattr(libsumo, "_libsumo", None)
+        v = libsumo.vehicle
+
+        def pick(name: str):
+            return getattr(raw, f"vehicle_{name}", None) or getattr(v, name)
+
+        self._get = tuple(pick(n) for n in ("getRoadID", "getLanePosition", "getSpeed", "getAcceleration", "getDistance", "getRouteIndex"))
+        self._get_leader = pick("getLeader")
+        self._get_min_gap = pick("getMinGap")
+        self.get_driving_distance = pick("getDrivingDistance")
 
     def close(self) -> None:
         if self._ls is not None:
@@ -126,9 +157,22 @@ class SumoBackend:
     # ----------------------------------------------------------------------------- stepping
     @_traci
     def step(self) -> float:
-        """Advance one step; returns the new simulation time, s."""
-        self._ls.simulationStep()
-        self._time = self._ls.simulation.getTime()
+        """Advance one step; returns the new simulation time, s.  Keeps the list of running trains
+        (:meth:`running`) from the trains that departed and arrived in the step."""
+        ls = self._ls
+        ls.simulationStep()
+        self._time = ls.simulation.getTime()
+        self._departed = list(ls.simulation.getDepartedIDList())
+        self._arrived = list(ls.simulation.getArrivedIDList())
+        running = self._running
+        for vid in self._departed:
+            insort(running, vid)
+            self._min_gap[vid] = self._get_min_gap(vid)
+        for vid in self._arrived:
+            i = bisect_left(running, vid)
+            if i < len(running) and running[i] == vid:
+                del running[i]
+            self._min_gap.pop(vid, None)
         return self._time
 
     @property
@@ -144,17 +188,46 @@ class SumoBackend:
         """Trains still in the simulation or waiting to be inserted."""
         return self._ls.simulation.getMinExpectedNumber()
 
-    @_traci
     def departed(self) -> list[str]:
-        return list(self._ls.simulation.getDepartedIDList())
+        """Trains that entered the network in the last step."""
+        return list(self._departed)
 
-    @_traci
     def arrived(self) -> list[str]:
-        return list(self._ls.simulation.getArrivedIDList())
+        """Trains that left the network in the last step."""
+        return list(self._arrived)
+
+    def running(self) -> list[str]:
+        """Trains in the network after the last step, in SUMO's order (by id, as ``getIDList``),
+        kept from the departures and arrivals of every step (no call into SUMO)."""
+        return list(self._running)
 
     @_traci
     def train_ids(self) -> list[str]:
+        """SUMO's own list of the trains in the network (one call; :meth:`running` is the same list)."""
         return list(self._ls.vehicle.getIDList())
+
+    @_traci
+    def observe_all(self, ids: list[str]) -> list[tuple[str, float, float, float, float, int]]:
+        """(edge, lane position m, speed m/s, acceleration m/s², odometer m, route index) of each
+        train in ``ids`` — the values :meth:`observe` gives, read in one go."""
+        road, pos, speed, accel, odo, index = self._get
+        return [(road(vid), pos(vid), speed(vid), accel(vid), odo(vid), index(vid)) for vid in ids]
+
+    @_traci
+    def leaders(self, ids: list[str], lookahead_m: float) -> list[tuple[str, float] | None]:
+        """:meth:`leader` of each train in ``ids``."""
+        get, min_gap = self._get_leader, self._min_gap
+        out: list[tuple[str, float] | None] = []
+        for vid in ids:
+            res = get(vid, lookahead_m)
+            if not res or not res[0]:
+                out.append(None)
+            else:
+                g = min_gap.get(vid)
+                if g is None:
+                    g = min_gap[vid] = self._get_min_gap(vid)
+                out.append((res[0], res[1] + g))
+        return out
 
     @_traci
     def observe(self, vid: str) -> TrainObservation:
@@ -179,14 +252,86 @@ class SumoBackend:
         front-to-rear in m) or None.  ``others``: (id, edge, front position on the edge, length).
 
         SUMO's getLeader only searches as far as its lane look-ahead reaches, which on long rail
-        routes can stop kilometres short of the train ahead; this is the fallback.
+        routes can stop kilometres short of the train ahead; this is the fallback (one driving
+        distance per other train: :meth:`route_leader_indexed` finds the candidates from the route).
         """
         best: tuple[str, float] | None = None
         for oid, edge, pos, length in others:
-            if oid == vid or edge.startswith(":"):
+            if oid == vid:
                 continue
+            if edge.startswith(":"):
+                edge, pos, length = self.crossing(oid, pos, length)
             d = self.driving_distance(vid, edge, pos)
             if d is None or d <= 0.0:
+                continue
+            gap = d - length
+            if gap <= lookahead_m and (best is None or gap < best[1]):
+                best = (oid, gap)
+        return best
+
+    @_traci
+    def crossing(self, vid: str, pos: float, length: float) -> tuple[str, float, float]:
+        """A train whose front is ``pos`` into a junction's internal lane, as a candidate train ahead:
+        (the route edge it is leaving, that edge's end, its length less ``pos``) — the same gap to
+        its rear as its front's (a train crossing a junction stays the train ahead)."""
+        edge = self._ls.vehicle.getRoute(vid)[self._ls.vehicle.getRouteIndex(vid)]
+        end = self._edge_length.get(edge)
+        if end is None:
+            end = self._edge_length[edge] = self._ls.lane.getLength(f"{edge}_0")
+        return edge, end, length - pos
+
+    @_traci
+    def route_leader_indexed(self, vid: str, s_m: float, route: list[str], starts_m: list[float], index: int,
+                             on_edge: dict[str, list[tuple[str, float, float]]], max_length_m: float, lookahead_m: float) -> tuple[str, float] | None:
+        """:meth:`route_leader` with the candidates taken from the route instead of from every train.
+
+        ``s_m``: ``vid``'s front on its route (``starts_m``: where each edge of ``route`` starts);
+        ``index``: its route index; ``on_edge``: the trains on each normal edge this step as (id,
+        front position on the edge, length); ``max_length_m``: the longest train.  The edges ahead are
+        walked as far as a train on them could be within the look-ahead; the trains found are
+        ranked by their gap on the route (which leaves out the junctions' internal lanes, so it
+        is at most SUMO's driving distance, the more so the farther the train), and SUMO's driving
+        distance decides among those that can be nearest: the same answer as :meth:`route_leader`.
+        """
+        if index < 0:
+            return None
+        return self.nearest_candidate(vid, self.walk_route(vid, s_m, route, starts_m, index, on_edge, max_length_m, lookahead_m)[0], lookahead_m)
+
+    @staticmethod
+    def walk_route(vid: str, s_m: float, route: list[str], starts_m: list[float], index: int, on_edge: dict[str, list[tuple[str, float, float]]],
+              max_length_m: float, lookahead_m: float) -> tuple[list[tuple[float, str, str, float, float]], int]:
+        """The candidates on the route from edge ``index`` on (approximate gap, id, edge, position,
+        length) and the first edge not looked at."""
+        cands: list[tuple[float, str, str, float, float]] = []
+        reach = lookahead_m + max_length_m + 1.0
+        best_approx = math.inf
+        k = index
+        for k in range(index, len(route)):
+            ahead = starts_m[k] - s_m
+            if ahead > reach or ahead - max_length_m > best_approx + 100.0:
+                return cands, k
+            for oid, pos, length in on_edge.get(route[k], ()):
+                if oid == vid or ahead + pos < -50.0:  # (a train more than 50 m behind on the same edge)
+                    continue
+                approx = ahead + pos - length
+                cands.append((approx, oid, route[k], pos, length))
+                if ahead + pos > 0.0 and approx < best_approx:
+                    best_approx = approx
+        return cands, len(route)
+
+    def nearest_candidate(self, vid: str, cands: list[tuple[float, str, str, float, float]], lookahead_m: float) -> tuple[str, float] | None:
+        """The candidate with the smallest gap by SUMO's driving distance (within the look-ahead)."""
+        if not cands:
+            return None
+        if len(cands) > 1:
+            cands.sort(key=lambda c: c[0])
+        best: tuple[str, float] | None = None
+        driving = self.get_driving_distance
+        for approx, oid, edge, pos, length in cands:
+            if best is not None and approx > best[1] + 1.0:
+                break
+            d = driving(vid, edge, pos)
+            if d <= INVALID_DISTANCE + 1 or d < -1e8 or d <= 0.0:
                 continue
             gap = d - length
             if gap <= lookahead_m and (best is None or gap < best[1]):
@@ -202,6 +347,7 @@ class SumoBackend:
     @_traci
     def set_type(self, vid: str, type_id: str) -> None:
         self._ls.vehicle.setType(vid, type_id)
+        self._min_gap[vid] = self._get_min_gap(vid)
 
     @_traci
     def set_speed(self, vid: str, speed_mps: float) -> None:
@@ -217,6 +363,11 @@ class SumoBackend:
         """Hand a train back to SUMO's own driver."""
         self._ls.vehicle.setSpeedMode(vid, SPEED_MODE_DEFAULT)
         self._ls.vehicle.setSpeed(vid, -1)
+
+    @_traci
+    def at_stop(self, vid: str) -> bool:
+        """The train stands at one of its stops (SUMO holds it there for its dwell)."""
+        return bool(self._ls.vehicle.getStopState(vid) & 1)
 
     @_traci
     def resume(self, vid: str) -> None:
@@ -253,9 +404,10 @@ class SumoBackend:
 
 def sumo_args(
     net_file: Path, route_file: Path, additional: list[Path], out: Path, step_length: float, end_time: float,
-    moving_block: bool, seed: int = 42, fcd_period: float = 1.0, full_outputs: bool = True,
+    moving_block: bool, seed: int = 42, fcd_period: float = 1.0, full_outputs: bool = True, fcd: bool = False,
 ) -> list[str]:
-    """SUMO options for a vcsumo run (also written into the results' .sumocfg)."""
+    """SUMO options for a vcsumo run (also written into the results' .sumocfg).  ``full_outputs``:
+    the rail-signal output; ``fcd``: SUMO's fcd output too (vcsumo's trajectories.csv holds the same samples)."""
     args = [
         "-n", str(net_file), "-r", str(route_file), "-a", ",".join(str(a) for a in additional),
         "--step-length", f"{step_length}", "--end", f"{end_time}", "--seed", str(seed),
@@ -265,12 +417,13 @@ def sumo_args(
         "--message-log", str(out / "sumo_messages.log"), "--aggregate-warnings", "3",
         "--tripinfo-output", str(out / "tripinfo.xml"), "--stop-output", str(out / "stops.xml"),
     ]
-    if full_outputs:
+    if fcd:
         args += [
             "--fcd-output", str(out / "fcd.xml"), "--device.fcd.period", f"{fcd_period}",
             "--fcd-output.distance", "true", "--fcd-output.acceleration", "true",
-            "--railsignal-vehicle-output", str(out / "railsignal_vehicles.xml"),
         ]
+    if full_outputs:
+        args += ["--railsignal-vehicle-output", str(out / "railsignal_vehicles.xml")]
     if moving_block:
         args += ["--railsignal-moving-block", "true"]
     return args

@@ -18,7 +18,9 @@ would run faster.  Targets:
   there approaches it for ever; one that ends beyond it hands SUMO a train too fast to stop; a
   constant creep carries the train past its stopping point at 0.1 s steps: all seen on the graded
   regional line);
-* the end of its route where it has to stop there (end of track);
+* the end of its route where it has to stop there: the end of the track (less the position
+  error, after the dead time), also at an open end of the network, where SUMO ends the trip with
+  a stop whose window takes the train held short of the end (``timetable.routes_xml``);
 * its **end of movement authority** — a merging junction it has to wait at
   (:mod:`vcsumo.sim.interlocking`), and the regime's: FBS — the last signal at least ``overlap_m``
   behind the rear of the train ahead (ETCS L2 with overlap); MB — the rear of the train ahead as
@@ -43,6 +45,7 @@ import math
 from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from vcsumo.errors import VcsumoError
 from vcsumo.dynamics import discrete_stop_speed
@@ -70,15 +73,18 @@ class _Curves:
     end_s: float | None
     signals: list[float]
     braking: RouteBraking
+    restriction_s: list[float] = field(default_factory=list)
+    """Positions of ``restrictions`` (for a bisection)."""
     next_stop: int = 0
+    platform_from: list[float] = field(default_factory=list)
+    """Where each stop's platform begins (the stop's position less the platform's length), m."""
     first_seen_s: float = math.nan
     odo_m: float = 0.0
     history_t: deque = field(default_factory=deque)
     history_odo: deque = field(default_factory=deque)
 
 
-@dataclass(frozen=True)
-class Permitted:
+class Permitted(NamedTuple):
     """A train's permitted speed and what set it."""
 
     speed_mps: float
@@ -92,7 +98,7 @@ class BrakingCurveSupervisor:
     """Permitted speeds of the trains SUMO drives under ``regime`` ('fbs' or 'mb')."""
 
     def __init__(self, model: SeparationModel, regime: str, trains: list[PlannedTrain], step_s: float, signals: dict[str, list[float]] | None = None,
-                 fixed_time_s: float | None = None, locking=None):
+                 fixed_time_s: float | None = None, locking=None, braking: dict[str, RouteBraking] | None = None):
         if regime not in ("fbs", "mb"):
             raise ValueError(f"braking-curve supervision of regime '{regime}' (fbs or mb)")
         self.model = model
@@ -100,23 +106,39 @@ class BrakingCurveSupervisor:
         self.step_s = step_s
         self.fixed_time_s = model.assumptions.fixed_time_s if fixed_time_s is None else fixed_time_s
         self.curves: dict[str, _Curves] = {}
+        a = model.assumptions
+        self._keep_s = self.fixed_time_s + a.position_report_period_s + 2.0 * step_s
+        """How long an odometer reading is kept, s."""
+        self._dead_s = a.dead_time_s
+        self._history = regime == "mb" or self.fixed_time_s > 0.0
+        """Odometer readings are kept only when an authority is built from an older position (MB
+        reports, fixed times): under FBS without fixed times it is built from the present one."""
         self.locking = locking
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
+        braking_of = braking
+        shared: dict[tuple[int, int], RouteBraking] = {}
         for t in trains:
-            stops = [x.s_m for x in t.stops]
+            at = [(x.s_m, x.platform_length_m) for x in t.stops]
             if t.final_stop is not None:
-                stops.append(t.final_stop.s_m)
+                at.append((t.final_stop.s_m, t.final_stop.platform_length_m))
+            at.sort()
+            stops = [x for x, _ in at]
             end_s = None
             if t.final_stop is None and t.stop_at_end:
+                # the end of the track; at an open end of the network SUMO ends the trip with a stop whose
+                # window takes the train held short of it by this rule (timetable.routes_xml)
                 end_s = t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m)
-            try:
-                braking = RouteBraking(model, t.stock, t.profile, kind)
+            try:  # the trains' braking under the absolute rule (``braking``: already built, e.g. the health monitor's)
+                braking = (braking_of or {}).get(t.id) or shared.get((id(t.stock), id(t.profile))) \
+                    or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile, kind))
             except ValueError:
                 g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
                 raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
                                   f"({1000 * g_low:.1f} ‰) under the assumption set '{model.assumptions.name}'") from None
-            self.curves[t.id] = _Curves(t, t.profile.restriction_targets(), sorted(stops), end_s, sorted((signals or {}).get(t.id, [])), braking)
+            restrictions = t.profile.restriction_targets()
+            self.curves[t.id] = _Curves(t, restrictions, stops, end_s, sorted((signals or {}).get(t.id, [])), braking,
+                                        [x for x, _ in restrictions], platform_from=[x - length if length > 0 else x for x, length in at])
 
     # ------------------------------------------------------------------------------------------
     def observe(self, train_id: str, time_s: float, odometer_m: float) -> None:
@@ -127,11 +149,14 @@ class BrakingCurveSupervisor:
         if math.isnan(c.first_seen_s):
             c.first_seen_s = time_s
         c.odo_m = odometer_m
-        c.history_t.append(time_s)
+        if not self._history:
+            return
+        ts = c.history_t
+        ts.append(time_s)
         c.history_odo.append(odometer_m)
-        keep = self.fixed_time_s + self.model.assumptions.position_report_period_s + 2.0 * self.step_s
-        while len(c.history_t) > 2 and c.history_t[1] <= time_s - keep:
-            c.history_t.popleft()
+        oldest = time_s - self._keep_s
+        while len(ts) > 2 and ts[1] <= oldest:
+            ts.popleft()
             c.history_odo.popleft()
 
     def _moved_since(self, c: _Curves, t_ref: float) -> float:
@@ -143,7 +168,7 @@ class BrakingCurveSupervisor:
         if i == 0:
             return c.odo_m - odo[0]
         if i >= len(ts):
-            return 0.0
+            return 0.0  # (also every FBS authority without fixed times: t_ref is now)
         t0, t1 = ts[i - 1], ts[i]
         then = odo[i - 1] + (odo[i] - odo[i - 1]) * (t_ref - t0) / max(t1 - t0, 1e-9)
         return c.odo_m - then
@@ -180,18 +205,44 @@ class BrakingCurveSupervisor:
         return c.signals[k] - s_m - a.position_error_m
 
     def permitted(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None) -> Permitted:
-        """The lowest braking curve over the train's targets, for the next step, m/s."""
+        """The lowest braking curve over the train's targets, for the next step, m/s.
+
+        A target matters only within the reach (1.3 × the stopping distance + 50 m); when the nearest
+        one is beyond an upper bound of the reach (:meth:`~vcsumo.signalling.separation.RouteBraking.stopping_bound`) no curve is computed — the
+        same answer as computing them all."""
         c = self.curves.get(train_id)
         if c is None:
             return Permitted(math.inf, "")
-        p = c.plan
         a_set = self.model.assumptions
         dt = self.step_s
+        rs = c.restriction_s
+        k0 = bisect_right(rs, s_m)  # the first restriction ahead
+        stops = c.stops
+        while c.next_stop < len(stops) and (stops[c.next_stop] < s_m - 1.0 or (stops[c.next_stop] < s_m + STOP_REACHED_M and v_mps < 0.05)
+                                            or (v_mps < 0.05 and c.platform_from[c.next_stop] <= s_m)):
+            # passed, standing at it (SUMO holds the train for its dwell), or standing in its platform
+            # behind a train stopped ahead in it (a convoy stands in the platform as one train; SUMO
+            # serves the stop there and does not run the follower on to the stopping point)
+            c.next_stop += 1
+        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s) if leader_id is not None else math.inf
+        if self.locking is not None:
+            d_lock = self.locking.authority_distance(train_id, s_m)
+            if d_lock < d_ma:
+                d_ma = d_lock
+        nearest = d_ma
+        if k0 < len(rs) and rs[k0] - s_m < nearest:
+            nearest = rs[k0] - s_m
+        if c.next_stop < len(stops) and stops[c.next_stop] - s_m < nearest:
+            nearest = stops[c.next_stop] - s_m
+        if c.end_s is not None and c.end_s - s_m < nearest:
+            nearest = c.end_s - s_m
+        if s_m >= 0.0 and nearest > 1.3 * c.braking.stopping_bound(v_mps, self._dead_s + 2 * dt) + 50.0:
+            return Permitted(math.inf, "", d_ma)
         best, reason = math.inf, ""
         # how far ahead a target can matter: the stopping distance with a generous margin
         br = c.braking
         reach = 1.3 * br.stopping_distance(s_m, v_mps, a_set.dead_time_s + 2 * dt) + 50.0
-        for s_t, v_t in c.restrictions:
+        for s_t, v_t in c.restrictions[k0:]:
             if s_t <= s_m:
                 continue
             if s_t - s_m > reach:
@@ -199,8 +250,6 @@ class BrakingCurveSupervisor:
             vp = br.permitted_speed(s_m, s_t, v_t, 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "limit"
-        while c.next_stop < len(c.stops) and (c.stops[c.next_stop] < s_m - 1.0 or (c.stops[c.next_stop] < s_m + STOP_REACHED_M and v_mps < 0.05)):
-            c.next_stop += 1  # passed, or standing at it (SUMO holds the train for its dwell)
         if c.next_stop < len(c.stops):
             s_t = c.stops[c.next_stop]
             if s_t - s_m <= reach:
@@ -215,9 +264,6 @@ class BrakingCurveSupervisor:
             vp = br.permitted_speed(s_m, c.end_s - a_set.position_error_m, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "end"
-        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s)
-        if self.locking is not None:
-            d_ma = min(d_ma, self.locking.authority_distance(train_id, s_m))
         if d_ma <= reach:
             vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
             if vp < best:

@@ -47,68 +47,30 @@ e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part reads ``controller
 from __future__ import annotations
 
 import math
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
-from vcsumo.config import load_model
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
 from vcsumo.control.faults import FAULT_KINDS, faults_frame
 from vcsumo.control.guard import GuardConfig, load_guard
-from vcsumo.control.params import resolve_params
 from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
-from vcsumo.errors import InputError
 from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
+from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
+from vcsumo.sim.convoy_plan import MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, load_channel
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
+from vcsumo.sim.records import VC_RECORD_COLUMNS, VC_RECORD_FLOATS, CsvStream, RunningStats
 from vcsumo.timetable import PlannedTrain, TimetableFile
-
-def load_channel(spec: str | Path | None, field: str | None = "--channel", base_dir: str | Path | None = None) -> ChannelConfig:
-    """Channel settings: a YAML file, a name in controllers/ (default ``channel``)."""
-    return load_model(ChannelConfig, resolve_params(spec, "channel", field, base_dir, kind="channel"))
-
-
-# -------------------------------------------------------------------------------------------
-# Convoys from the timetable
-
-
-def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain]) -> list[list[PlannedTrain]]:
-    """Convoys as lists of planned trains (leader first); repeated services pair up by index."""
-    by_service: dict[str, list[PlannedTrain]] = {}
-    for t in trains:
-        by_service.setdefault(t.service, []).append(t)
-    out: list[list[PlannedTrain]] = []
-    used: set[str] = set()
-    for c_i, cv in enumerate(tt.convoys):
-        counts = {s: len(by_service.get(s, [])) for s in cv.services}
-        for s_i, s in enumerate(cv.services):
-            if counts[s] == 0:
-                raise InputError(tt_path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{s}', which does not exist")
-            if s in used:
-                raise InputError(tt_path, f"convoys[{c_i}].services[{s_i}]", f"service '{s}' is already in another convoy")
-        if len(set(counts.values())) != 1:
-            raise InputError(tt_path, f"convoys[{c_i}].services", f"services of convoy '{cv.id}' repeat a different number of times: {counts}")
-        used |= set(cv.services)
-        for k in range(next(iter(counts.values()))):
-            members = [by_service[s][k] for s in cv.services]
-            shared = set(members[0].edges)
-            for m in members[1:]:
-                if not shared & set(m.edges):
-                    raise InputError(tt_path, f"convoys[{c_i}]", f"trains of convoy '{cv.id}' share no track ({members[0].id} / {m.id})")
-            out.append(members)
-    if not out:
-        raise InputError(tt_path, "convoys", "the vc regime needs at least one convoy in the timetable (convoys: [{id, services: [leader, follower]}])")
-    return out
-
 
 # -------------------------------------------------------------------------------------------
 # Route frames
@@ -177,7 +139,8 @@ class _Follower:
     emergency_episodes: int = 0
     in_emergency: bool = False
     interventions: int = 0
-    solve_ms: list[float] = field(default_factory=list)
+    solve_ms: RunningStats = field(default_factory=RunningStats)
+    """The stack's CPU time per step, ms (running statistics: no per-step list)."""
     modes: dict[str, int] = field(default_factory=dict)
     coupled_since_s: float = math.nan
     released_at_s: float = math.nan
@@ -192,6 +155,7 @@ class _Follower:
     braking: RouteBraking | None = None
     """The follower's guaranteed braking on its route under the absolute rule (stop hand-over)."""
     stood_since_s: float = math.nan
+    formation: Formation = field(default_factory=Formation)
     """Since when it stands at a shared stop behind its predecessor, s."""
 
     @property
@@ -228,7 +192,7 @@ class VCDriver:
         self.followers: dict[str, _Follower] = {}
         self.record_every_s = record_every_s
         self._next_record = -math.inf
-        self.records: list[dict] = []
+        self._records, self._streaming = CsvStream(Path("vc_followers.csv"), VC_RECORD_COLUMNS, VC_RECORD_FLOATS, chunk_rows=1 << 62), False
         for members in convoys:
             ids = tuple(m.id for m in members)
             for m in members:
@@ -240,6 +204,8 @@ class VCDriver:
                 stack = build_follower_stack(controller, StackContext(
                     ego=ego.stock, predecessor=pred.stock, step_s=step_s, profile=ego.profile, supervisor_params=cbf_config, guard=self.guard,
                     ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions))
+                if getattr(stack.supervisor, "record", None):
+                    stack.supervisor.record = False  # its barrier history is read by no output of a SUMO run (the records carry the barrier)
                 frames = {}
                 for other in members:
                     if other.id != ego.id:
@@ -265,9 +231,10 @@ class VCDriver:
     # -----------------------------------------------------------------------------------
     def _send(self, snap: Snapshot) -> None:
         t = snap.time_s
-        for tid, st in snap.trains.items():
+        for tid in snap.trains:
             if tid not in self.convoy_of or not self.channel.due(tid, t):
                 continue
+            st = snap.trains[tid]
             plan = self.trains[tid]
             f = self.followers.get(tid)
             times = pos = spd = frc = None
@@ -325,12 +292,14 @@ class VCDriver:
         record = t >= self._next_record - 1e-9
         if record:
             self._next_record = t + self.record_every_s
+        self.channel.advance(t)  # what is due arrives whether or not its receiver runs
+        trains = snap.trains
         for fid, f in self.followers.items():
-            st = snap.trains.get(fid)
-            pst = snap.trains.get(f.pred.id)
-            received = self.channel.deliver(fid, t)
-            if st is None:
+            if fid not in trains:
                 continue
+            st = trains[fid]
+            pst = trains.get(f.pred.id)
+            received = self.channel.deliver(fid, t)
             fr = f.frames.get(f.pred.id)
             if not f.linked and pst is not None and fr is not None:
                 # the link is up when a convoy starts (its members formed it standing, or were released formed):
@@ -403,7 +372,7 @@ class VCDriver:
             t0 = time.perf_counter()
             cmd = f.stack.make_step(obs)  # controller -> supervisor -> separation guard, with fault handling
             f.interventions = f.stage.supervisor_interventions
-            f.solve_ms.append(1000.0 * (time.perf_counter() - t0))
+            f.solve_ms.add(1000.0 * (time.perf_counter() - t0))
             f.last_cmd = cmd
             f.steps += 1
             f.infeasible += int(cmd.infeasible)
@@ -431,23 +400,28 @@ class VCDriver:
                 m = received.get(f.pred.id)
                 if m is not None:
                     gap_comm = m.state.position_m - m.length_m - st.s_m
-                self.records.append({
-                    "time_s": t, "train": fid, "predecessor": f.pred.id, "km": st.km, "speed_mps": st.speed_mps,
-                    "predecessor_speed_mps": pst.speed_mps, "gap_m": (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m,
-                    "sensed_gap_m": sensed_gap, "communicated_gap_m": gap_comm, "force_n": cmd.force_n, "mode": cmd.mode,
-                    "emergency": cmd.emergency, "infeasible": cmd.infeasible,
-                    "barrier_true_m": cmd.info.get("cbf_true_barrier_m"), "barrier_robust_m": cmd.info.get("cbf_robust_barrier_m"),
-                    "speed_nominal_mps": v_nominal, "speed_guard_mps": v_guard, "speed_command_mps": v_next,
-                })
+                gap = (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m
+                if st.speed_mps >= MOVING_MPS:
+                    plan = self.trains[fid]
+                    full = min(p.max_traction_n, p.max_power_w / st.speed_mps)  # the most traction the train has at this speed
+                    f.formation.update(t, self.record_every_s, st.speed_mps, gap, self.coupled_spacing_m(fid, st.speed_mps, st.s_m),
+                                       plan.profile.speed_limit_train(st.s_m, plan.stock.length_m), v_nominal, v_guard,
+                                       at_full_traction=f_in >= 0.98 * full)
+                self._records.append((
+                    t, fid, f.pred.id, st.km, st.speed_mps, pst.speed_mps, gap,
+                    sensed_gap, gap_comm, cmd.force_n, cmd.mode, cmd.emergency, cmd.infeasible,
+                    cmd.info.get("cbf_true_barrier_m"), cmd.info.get("cbf_robust_barrier_m"), v_nominal, v_guard, v_next,
+                ))
         if self.junction is not None:
             commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands
 
-    def coupled_spacing_m(self, train_id: str, v_mps: float) -> float:
-        """The spacing a follower's stack keeps behind its predecessor at a common speed v: its
-        controller's coupled gap, at least its minimum safe gap (with a CBF: the safety distance d), m."""
+    def coupled_spacing_m(self, train_id: str, v_mps: float, position_m: float | None = None) -> float:
+        """The spacing a follower's stack keeps behind its predecessor at a common speed v (with its
+        front at ``position_m`` on its route: on the gradients there): its controller's coupled gap,
+        at least its minimum safe gap (with a CBF: the safety distance d), m."""
         f = self.followers[train_id]
-        return max(f.stack.coupled_gap_m(v_mps), f.d_min)
+        return max(f.stack.coupled_gap_m(v_mps, position_m), f.d_min)
 
     # -----------------------------------------------------------------------------------
     def predecessor_of(self, train_id: str) -> str | None:
@@ -458,17 +432,30 @@ class VCDriver:
         f = self.followers.get(train_id)
         return f.d_min if f is not None else 50.0
 
+    @property
+    def records(self) -> list[dict]:
+        """The follower records held in memory (all unless :meth:`stream_records` sent them to disk)."""
+        return [dict(zip(VC_RECORD_COLUMNS, r)) for r in self._records.rows]
+
+    def stream_records(self, out: Path) -> None:
+        """Write the records to ``out``/vc_followers.csv in chunks during the run (bounded memory)."""
+        self._records, self._streaming = CsvStream(Path(out) / "vc_followers.csv", VC_RECORD_COLUMNS, VC_RECORD_FLOATS), True
+
     def summary(self) -> dict:
         fs = list(self.followers.values())
-        solve = np.concatenate([np.asarray(f.solve_ms) for f in fs]) if fs and any(f.solve_ms for f in fs) else np.array([])
+        solve = RunningStats()
+        for f in fs:
+            solve = solve.merge(f.solve_ms)
         return {
             "controller": self.name + (f":{self.params_spec}" if self.params_spec else ""), "convoy_followers": len(fs),
             "coupled_steps": int(sum(f.steps for f in fs)), "controller_infeasible_steps": int(sum(f.infeasible for f in fs)),
             "vc_emergency_activations": int(sum(f.emergency_episodes for f in fs)), "vc_emergency_steps": int(sum(f.emergency_steps for f in fs)),
             "supervisor_interventions": int(sum(f.interventions for f in fs)),
             "guard_interventions": int(sum(f.guard_interventions for f in fs)),
-            "controller_step_median_ms": float(np.median(solve)) if solve.size else None,
-            "controller_step_p99_ms": float(np.percentile(solve, 99)) if solve.size else None,
+            "controller_step_median_ms": solve.quantile(0.5) if solve.count else None,
+            "controller_step_p99_ms": solve.quantile(0.99) if solve.count else None,
+            "followers_formed": sum(1 for f in fs if f.formation.running_s > 0 and not f.formation.reason()),
+            "followers_not_formed": sum(1 for f in fs if f.formation.reason()),
             "channel_sent": self.channel.sent, "channel_lost": self.channel.lost,
             "fault_events": len(self.fault_events()), "fault_emergency_steps": int(sum(f.stage.emergency_steps for f in fs)),
             **{f"fault_events_{k}": int(sum(f.stage.counts()[k] for f in fs)) for k in FAULT_KINDS},
@@ -480,71 +467,20 @@ class VCDriver:
 
     def write_report(self, out: Path) -> None:
         """``vc_followers.csv`` (per follower step records), ``faults.csv`` (fault events) and ``vc_summary.json``."""
-        pd.DataFrame(self.records).to_csv(out / "vc_followers.csv", index=False)
+        if not self._streaming:
+            self._records.frame().to_csv(out / "vc_followers.csv", index=False)
+        else:
+            self._records.close()
+            if self._records.path.resolve() != (Path(out) / "vc_followers.csv").resolve():
+                shutil.copyfile(self._records.path, Path(out) / "vc_followers.csv")
         faults_frame(self.fault_events()).to_csv(out / "faults.csv", index=False)
         per = []
         for fid, f in self.followers.items():
             per.append({"train": fid, "predecessor": f.pred.id, "coupled_steps": f.steps, "infeasible_steps": f.infeasible, "stop_handovers": f.stop_handovers,
                         "emergency_activations": f.emergency_episodes, "supervisor_interventions": f.interventions, "guard_interventions": f.guard_interventions,
                         "coupled_since_s": f.coupled_since_s, "released_at_s": f.released_at_s, "modes": f.modes,
-                        "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps})
+                        "fault_events": len(f.stage.events), "fault_emergency_steps": f.stage.emergency_steps, **f.formation.row()})
         write_json(out / "vc_summary.json", {"summary": self.summary(), "followers": per})
-
-
-def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
-                              window_s: float = 300.0) -> None:
-    """Members leaving the leader's platform within ``window_s`` depart with it, standing behind it.
-
-    The follower's front is placed ``standstill_gap_m`` behind the rear of the train ahead on the
-    same departure edge.  If the convoy does not stand in that edge, the follower departs from its
-    own position as soon as the train ahead has cleared it by the standstill gap (its unhindered
-    start, with ``model``'s guaranteed braking; SUMO would otherwise insert it a few metres behind).
-    """
-    for members in convoys:
-        for k in range(1, len(members)):
-            ego, ahead = members[k], members[k - 1]
-            if ego.edges[0] != ahead.edges[0] or abs(ego.depart_s - ahead.depart_s) > window_s or ahead.depart_speed_mps > 0:
-                continue
-            gap = standstill_gap_m.get(ego.id, 10.0)
-            pos = ahead.depart_pos_m - ahead.stock.length_m - gap
-            if pos >= ego.stock.length_m:
-                ego.depart_s = ahead.depart_s
-                ego.depart_pos_m = pos
-                ego.start_s_m = pos
-                continue
-            if model is None or abs(ego.depart_pos_m - ahead.depart_pos_m) > 1.0:
-                continue
-            from vcsumo.running_time import time_at
-
-            run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=ahead.start_s_m + ahead.stock.length_m + gap + 1.0,
-                                 stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
-            clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
-            ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
-
-
-MIN_CONVOY_DWELL_S = 5.0
-"""A follower released from a shared stop with its leader has stood there at least this long, s."""
-
-
-def align_convoy_stops(convoys: list[list[PlannedTrain]], window_s: float = 300.0) -> dict[str, int]:
-    """A convoy leaves a station it stops at together: a follower's scheduled departure from a station
-    its predecessor also stops at is brought forward to the predecessor's when it is at most
-    ``window_s`` later (a timetable written "follower 30 s behind" would otherwise keep it 30 s
-    behind for ever: it cannot run faster than its leader at the line speed).  Returns the number
-    of departures moved per follower."""
-    moved: dict[str, int] = {}
-    for members in convoys:
-        for k in range(1, len(members)):
-            ego, ahead = members[k], members[k - 1]
-            dep = {x.station: x.departure_s for x in ahead.stops if x.departure_s is not None}
-            n = 0
-            for x in ego.stops:
-                d = dep.get(x.station)
-                if d is not None and x.departure_s is not None and 0.0 < x.departure_s - d <= window_s:
-                    x.departure_s = d
-                    n += 1
-            moved[ego.id] = n
-    return moved
 
 
 def make_vc_driver(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain], controller: str, step_s: float, seed: int = 42,

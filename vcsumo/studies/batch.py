@@ -27,220 +27,40 @@ and its ``error``; its results folder is removed (never left half-written).  Run
 :mod:`vcsumo.engine.campaign`: a worker process that dies during a run (SIGKILL, SUMO aborting
 the process) fails only that run, after one more try alone (error :data:`WORKER_DIED`).
 
-Metrics of a run (``BATCH_COLUMNS``; times in s):
-
-* arrival delay of a train = actual arrival at its destination − its *reference arrival*: the
-  scheduled arrival, or, for a train without one, its scheduled departure + its unhindered
-  running time (:func:`vcsumo.signalling.uic406.reference_arrivals`: unhindered run, scheduled stops
-  honoured);
-* ``punctuality_3min_share`` / ``punctuality_5min_share``: share of the run's trains that arrived
-  with an arrival delay ≤ 180 s / 300 s (trains that never arrived count as late);
-* ``mean_arrival_delay_s``, ``max_arrival_delay_s``: over the trains that arrived (signed: early
-  arrivals are negative);
-* ``primary_delay_s``: sum of the injected delays; ``knock_on_delay_s``: sum over arrived trains
-  of max(0, arrival delay − the primary delay the train carried), the secondary delay;
-* ``capacity_consumption_pct``: UIC 406 consumption of the timetable (no delays) under the run's
-  regime, maximum over the line sections (:mod:`vcsumo.signalling.uic406`; ``..._cyclic_pct`` with the cycle
-  closed);
-* ``min_gap_m``, ``gap_violations``, ``collisions``, ``emergency_brakes``: from the simulation.
+Modules: :mod:`vcsumo.studies.batch_run` runs one run and defines its metrics (``BATCH_COLUMNS``,
+``TRAIN_COLUMNS``); :mod:`vcsumo.studies.batch_uic406` computes the UIC 406 table; this module plans,
+executes, stores and reports the batch.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
-import math
-import os
-import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
 import pandas as pd
 
-from vcsumo.delays import DelayConfig, config_digest, inject_delays
-from vcsumo.engine.campaign import WORKER_DIED, Outcome, Runner, Task, error_message, run_campaign  # noqa: F401 - WORKER_DIED re-exported
-from vcsumo.engine.store import ResultStore, Table, atomic_csv, read_table
+from vcsumo.delays import DelayConfig, config_digest
+from vcsumo.engine.campaign import WORKER_DIED, Outcome, Runner, Task, run_campaign
+from vcsumo.engine.store import ResultStore, Table, read_table
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.network_file import load_line_or_network
 from vcsumo.results import ResultsFolder, file_digest
+from vcsumo.studies.batch_run import (
+    BATCH_COLUMNS,
+    DEFAULT_CONTROLLER,
+    PUNCTUALITY_THRESHOLDS_S,
+    TRAIN_COLUMNS,
+    RunSpec,
+    failed_outcome,
+    run_key,
+    run_one,
+)
+from vcsumo.studies.batch_uic406 import UIC_COLUMNS, run_capacity, uic_table
 
-BATCH_COLUMNS = [
-    "timetable", "regime", "controller", "seed", "status", "error", "trains", "trains_arrived",
-    "punctuality_3min_share", "punctuality_5min_share", "mean_arrival_delay_s", "max_arrival_delay_s",
-    "primary_delay_s", "knock_on_delay_s", "capacity_consumption_pct", "capacity_consumption_cyclic_pct",
-    "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "wall_time_s",
-    "line", "timetable_sha256", "delay_config_sha256", "run_key", "run_dir",
-]
-TRAIN_COLUMNS = [
-    "run_key", "timetable", "regime", "controller", "seed", "train", "service", "direction",
-    "scheduled_departure_s", "departure_s", "reference_arrival_s", "arrival_s", "arrived", "arrival_delay_s",
-    "origin_delay_s", "dwell_extension_s", "primary_delay_s", "knock_on_delay_s",
-]
-UIC_COLUMNS = ["timetable", "timetable_sha256", "regime", "step_length_s", "window_s", "direction", "section", "from_km", "to_km",
-               "length_m", "blocks", "trains", "scheduled_span_s", "occupation_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct"]
-PUNCTUALITY_THRESHOLDS_S = (180.0, 300.0)
 REGIMES = ("fbs", "mb", "vc")
-DEFAULT_CONTROLLER = "cbf-cbc"
-
-_SUMO_LOCK = threading.Lock()
-"""libsumo is one simulation per process: runs in threads of one process (a Dask worker with
-several threads) take turns."""
-
-
-# ---------------------------------------------------------------------------------------------
-# Runs
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """One run of a batch (picklable: sent to worker processes and Dask workers)."""
-
-    line_path: str
-    block_length_m: float | None
-    timetable_path: str
-    timetable: str
-    timetable_sha256: str
-    regime: str
-    controller: str
-    """VC controller; '' for fbs and mb."""
-    seed: int
-    delays: dict
-    """The DelayConfig as a plain dict."""
-    delay_config_sha256: str
-    step_length_s: float
-    run_dir: str
-    key: str
-    line: str
-    command: str = ""
-
-    @property
-    def label(self) -> str:
-        ctrl = f"/{self.controller}" if self.controller else ""
-        return f"{self.timetable} {self.regime}{ctrl} seed {self.seed}"
-
-
-def run_key(timetable_sha256: str, regime: str, controller: str, seed: int, delay_sha256: str, line_sha256: str,
-            step_length_s: float, block_length_m: float | None) -> str:
-    """The resume key of a run (16 hex digits)."""
-    text = f"{timetable_sha256}|{regime}|{controller}|{int(seed)}|{delay_sha256}|{line_sha256}|{step_length_s:g}|{block_length_m}"
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _one_line(msg: str) -> str:
-    return " ".join(str(msg).split())
-
-
-def _base_row(spec: RunSpec) -> dict:
-    row = {c: None for c in BATCH_COLUMNS}
-    row.update(timetable=spec.timetable, regime=spec.regime, controller=spec.controller, seed=spec.seed, line=spec.line,
-               timetable_sha256=spec.timetable_sha256, delay_config_sha256=spec.delay_config_sha256, run_key=spec.key,
-               run_dir=os.path.relpath(spec.run_dir, Path(spec.run_dir).parent.parent))
-    return row
-
-
-def failed_outcome(spec: RunSpec, error: str, wall_time_s: float = 0.0) -> dict:
-    """The outcome of a run that did not complete."""
-    row = _base_row(spec)
-    row.update(status="failed", error=_one_line(error), wall_time_s=round(wall_time_s, 3))
-    return {"row": row, "trains": []}
-
-
-def run_one(spec: RunSpec) -> dict:
-    """Run one batch run; never raises: a failure is an outcome with status 'failed'.
-
-    Returns ``{"row": <batch.csv row>, "trains": [<batch_trains.csv rows>]}``.
-    """
-    t0 = time.perf_counter()
-    try:
-        with _SUMO_LOCK:
-            out = _run(spec)
-        out["row"]["wall_time_s"] = round(time.perf_counter() - t0, 3)
-        return out
-    except BaseException as exc:  # noqa: BLE001 - a batch never stops for one run
-        if isinstance(exc, KeyboardInterrupt):
-            raise
-        return failed_outcome(spec, error_message(exc), time.perf_counter() - t0)
-
-
-def _run(spec: RunSpec) -> dict:
-    from vcsumo.sim.network import build_network
-    from vcsumo.sim.loop import Scenario, simulate
-    from vcsumo.timetable import load_timetable, plan_trains
-    from vcsumo.signalling.uic406 import reference_arrivals
-
-    line = load_line_or_network(spec.line_path)
-    tt_path = Path(spec.timetable_path)
-    if not tt_path.is_file():
-        raise InputError(tt_path, None, "timetable file not found")
-    if file_digest(tt_path) != spec.timetable_sha256:
-        raise InputError(tt_path, None, "timetable file changed since the batch started")
-    tt, tt_path = load_timetable(tt_path, line)
-    net = build_network(line, spec.block_length_m)
-    planned = plan_trains(tt, tt_path, line, net.topology, dt=spec.step_length_s)
-    cfg = DelayConfig.model_validate(spec.delays)
-    trains, delays = inject_delays(planned, cfg, spec.seed, spec.timetable_sha256)
-    driver = None
-    if spec.regime == "vc":
-        from vcsumo.sim.vc_driver import make_vc_driver
-
-        driver = make_vc_driver(tt, tt_path, trains, spec.controller or DEFAULT_CONTROLLER, spec.step_length_s, spec.seed)
-    ref = reference_arrivals(planned, spec.step_length_s)
-    params = {"regime": spec.regime, "controller": spec.controller or None, "step_length_s": spec.step_length_s,
-              "block_length_m": spec.block_length_m, "delays": spec.delays, "delay_config_sha256": spec.delay_config_sha256,
-              "run_key": spec.key, "batch_command": spec.command}
-    with ResultsFolder(Path(spec.run_dir), inputs={**line.input_files(), "timetable": tt_path}, seed=spec.seed, params=params, overwrite=True) as rf:
-        scn = Scenario(line, net, trains, spec.regime, step_length_s=spec.step_length_s, seed=spec.seed, driver=driver, full_outputs=False)
-        res = simulate(scn, rf.path)
-        if driver is not None:
-            driver.write_report(rf.path)
-            res.summary.update(driver.summary())
-            (rf.path / "summary.json").write_text(json.dumps(res.summary, indent=2, default=str))
-        pd.DataFrame([{"train": d.train, "origin_delay_s": d.origin_s, "dwell_extensions_s": " ".join(f"{x:g}" for x in d.dwell_s),
-                       "primary_delay_s": round(d.total_s, 1)} for d in delays.values()]).to_csv(rf.path / "delays.csv", index=False)
-        row, train_rows = _metrics(spec, planned, delays, ref, res)
-        pd.DataFrame(train_rows, columns=TRAIN_COLUMNS).to_csv(rf.path / "trains.csv", index=False)
-    return {"row": row, "trains": train_rows}
-
-
-def _metrics(spec: RunSpec, planned, delays, ref: dict[str, float], res) -> tuple[dict, list[dict]]:
-    sim = res.trains.set_index("train")
-    train_rows = []
-    for t in planned:
-        d = delays[t.id]
-        r = sim.loc[t.id] if t.id in sim.index else None
-        arrived = bool(r is not None and bool(r["arrived"]))
-        arrival = float(r["arrival_s"]) if arrived else math.nan
-        delay = arrival - ref[t.id] if arrived else math.nan
-        primary = d.total_s
-        train_rows.append({
-            "run_key": spec.key, "timetable": spec.timetable, "regime": spec.regime, "controller": spec.controller, "seed": spec.seed,
-            "train": t.id, "service": t.service, "direction": t.direction, "scheduled_departure_s": t.depart_s,
-            "departure_s": float(r["departure_s"]) if r is not None and r["departure_s"] == r["departure_s"] else math.nan,
-            "reference_arrival_s": round(ref[t.id], 2), "arrival_s": arrival, "arrived": arrived,
-            "arrival_delay_s": round(delay, 2) if arrived else math.nan, "origin_delay_s": d.origin_s,
-            "dwell_extension_s": round(sum(d.dwell_s), 1), "primary_delay_s": round(primary, 1),
-            "knock_on_delay_s": round(max(0.0, delay - primary), 2) if arrived else math.nan,
-        })
-    tr = pd.DataFrame(train_rows)
-    arr = tr[tr["arrived"]]
-    n = len(tr)
-    s = res.summary
-    row = _base_row(spec)
-    row.update(
-        status="ok", error="", trains=n, trains_arrived=int(len(arr)),
-        punctuality_3min_share=round(float((arr["arrival_delay_s"] <= PUNCTUALITY_THRESHOLDS_S[0]).sum()) / n, 4) if n else math.nan,
-        punctuality_5min_share=round(float((arr["arrival_delay_s"] <= PUNCTUALITY_THRESHOLDS_S[1]).sum()) / n, 4) if n else math.nan,
-        mean_arrival_delay_s=round(float(arr["arrival_delay_s"].mean()), 2) if len(arr) else math.nan,
-        max_arrival_delay_s=round(float(arr["arrival_delay_s"].max()), 2) if len(arr) else math.nan,
-        primary_delay_s=round(float(tr["primary_delay_s"].sum()), 1),
-        knock_on_delay_s=round(float(arr["knock_on_delay_s"].sum()), 2),
-        min_gap_m=round(float(s["min_gap_m"]), 3) if s.get("min_gap_m") is not None else math.nan,
-        gap_violations=int(s["gap_violations"]), collisions=int(s["collisions"]), emergency_brakes=int(s["emergency_brakes"]),
-    )
-    return row, train_rows
 
 
 # ---------------------------------------------------------------------------------------------
@@ -330,60 +150,6 @@ def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: lis
 
 
 # ---------------------------------------------------------------------------------------------
-# UIC 406 per timetable (cached in uic406.csv)
-
-
-def _uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step_length_s: float, block_length_m: float | None) -> pd.DataFrame:
-    path = out / "uic406.csv"
-    have = pd.read_csv(path, dtype={"timetable_sha256": str, "timetable": str}) if path.is_file() else pd.DataFrame(columns=UIC_COLUMNS)
-    if list(have.columns) != UIC_COLUMNS:
-        have = pd.DataFrame(columns=UIC_COLUMNS)
-
-    def cached(sha: str, regime: str) -> bool:
-        m = (have["timetable_sha256"] == sha) & (have["regime"] == regime) & (have["window_s"] == window_s) & (have["step_length_s"] == step_length_s)
-        return bool(m.any())
-
-    need: dict[str, tuple[RunSpec, set[str]]] = {}
-    for s in specs:
-        if not cached(s.timetable_sha256, s.regime):
-            need.setdefault(s.timetable_sha256, (s, set()))[1].add(s.regime)
-    if not need:
-        return have
-    from vcsumo.sim.network import build_network
-    from vcsumo.timetable import load_timetable, plan_trains
-    from vcsumo.signalling.uic406 import capacity_consumption, convoy_pairs
-
-    net = build_network(line, block_length_m)
-    new = []
-    for sha, (spec, regimes) in need.items():
-        try:
-            tt, p = load_timetable(Path(spec.timetable_path), line)
-            trains = plan_trains(tt, p, line, net.topology, dt=step_length_s)
-            pairs = convoy_pairs(tt, trains)
-        except VcsumoError:
-            continue  # the runs fail with the same error
-        cache: dict = {}
-        for regime in sorted(regimes):
-            df = capacity_consumption(line, net, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache)
-            df.insert(0, "timetable", spec.timetable)
-            df.insert(1, "timetable_sha256", sha)
-            df.insert(3, "step_length_s", step_length_s)
-            new.append(df[UIC_COLUMNS])
-    if new:
-        have = pd.concat([have] + new, ignore_index=True) if len(have) else pd.concat(new, ignore_index=True)
-        atomic_csv(have, path)
-    return have
-
-
-def _capacity(uic: pd.DataFrame, spec: RunSpec, window_s: float) -> tuple[float, float]:
-    m = (uic["timetable_sha256"] == spec.timetable_sha256) & (uic["regime"] == spec.regime) & (uic["window_s"] == window_s) & (uic["step_length_s"] == spec.step_length_s)
-    sel = uic[m]
-    if sel.empty:
-        return math.nan, math.nan
-    return float(sel["consumption_pct"].max()), float(sel["cyclic_consumption_pct"].max())
-
-
-# ---------------------------------------------------------------------------------------------
 # Execution (vcsumo.engine.campaign)
 
 
@@ -392,7 +158,7 @@ def _to_rows(uic: pd.DataFrame, window_s: float):
         spec: RunSpec = task.arg
         outcome = out.value if out.ok else failed_outcome(spec, out.error, out.wall_time_s)
         row = outcome["row"]
-        row["capacity_consumption_pct"], row["capacity_consumption_cyclic_pct"] = _capacity(uic, spec, window_s)
+        row["capacity_consumption_pct"], row["capacity_consumption_cyclic_pct"] = run_capacity(uic, spec, window_s)
         return [row], {TRAINS_TABLE.name: outcome["trains"]}
 
     return to_rows
@@ -454,7 +220,7 @@ def run_batch(
         if retry_failed:
             existing = read_batch(out)
             store.forget(existing.loc[(existing["status"] == "failed") & existing["run_key"].isin(requested), "run_key"])
-        uic = _uic_table(out, line, specs, window_s, step_length_s, block_length_m)
+        uic = uic_table(out, line, specs, window_s, step_length_s, block_length_m)
 
         tasks = [Task(s.key, run_one, s, s.label) for s in specs]
         res = run_campaign(store, tasks, runner, _to_rows(uic, window_s),
@@ -465,7 +231,7 @@ def run_batch(
         df = df.sort_values("run_key", key=lambda k: k.map(order)).reset_index(drop=True)[BATCH_COLUMNS]
         # capacity consumption of this invocation's window (rows resumed from an earlier window are refreshed)
         by_key = {s.key: s for s in specs}
-        caps = [_capacity(uic, by_key[k], window_s) for k in df["run_key"]]
+        caps = [run_capacity(uic, by_key[k], window_s) for k in df["run_key"]]
         df["capacity_consumption_pct"] = [c[0] for c in caps]
         df["capacity_consumption_cyclic_pct"] = [c[1] for c in caps]
         write_report(out, df, line, tts, delays, delay_config_path, seeds, regimes, controllers, step_length_s, block_length_m, window_s,
@@ -528,3 +294,10 @@ def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path]
 
         plot_delays(out / "batch_trains.csv", rf.path / "batch_runs.csv", rf.path / "batch_delays.png")
         plot_punctuality(rf.path / "batch_runs.csv", rf.path / "batch_punctuality.png")
+
+
+__all__ = [
+    "BATCH_COLUMNS", "BATCH_TABLE", "DEFAULT_CONTROLLER", "PUNCTUALITY_THRESHOLDS_S", "REGIMES", "SUMMARY_AGG", "TRAIN_COLUMNS", "TRAINS_TABLE",
+    "UIC_COLUMNS", "WORKER_DIED", "RunSpec", "default_batch_out", "failed_outcome", "plan_runs", "read_batch", "resolve_timetables", "run_batch",
+    "run_key", "run_one", "summarize", "write_report",
+]

@@ -14,11 +14,20 @@ For each direction, stopping pattern, regime and (VC) controller and convoy size
   its own leader, and its trajectory depends on its own (seeded, random) channel; how well it keeps
   up is reported as ``intra_convoy_gap_m``;
 * ``headway_sim_s`` is the time between the unit leaders passing the critical section in that run;
-  ``headway_analytic_s`` is blocking-time theory on the leader's unhindered profile
-  (:mod:`vcsumo.signalling.blocking_time`: FBS blocks, MB absolute braking distance + 50 m; a VC convoy is one
-  train whose last member passes each point τ_c(z) after its leader — the convoy's occupation,
-  measured in the run (its coupling, stops and platform sharing) — and the next convoy's leader
-  keeps moving-block distance to that last train: H(y) = t(z) + τ_c(z) − t(y), z = y + D + 50 m + L);
+  ``headway_analytic_s`` is the regime's minimum headway from the separation model alone
+  (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway` on the leader's unhindered,
+  supervised profile: FBS blocks with their release and fixed times, MB the guaranteed braking
+  distance + margin behind the rear, VC a convoy whose followers run the coupled gap
+  ``vc_gap(v)`` behind each other and the next convoy at moving-block distance from its last
+  train) — it is independent of the simulation;
+* a convoy is **formed** when its followers run within 10 % + 10 m of the spacing their stacks
+  keep at the release speed (``intra_convoy_gap_m`` — the median simulated gap at the release
+  speed ±3 % — beside ``coupled_spacing_m``, and the analytic headway's ``coupled_gap_model_m``;
+  ``convoy_formed``).  A follower that enters the line at a
+  lower permitted speed than its leader (a speed restriction before the release point) keeps the
+  time gap of that restriction at line speed: equal trains at the same line speed cannot close
+  it, and the simulated headway is then longer than the analytic one, which assumes a formed
+  convoy;
 * ``capacity_trains_per_h`` = 3600·n / headway (every train of a convoy counts);
   ``gain_vs_fbs`` = capacity / FBS capacity in the same direction and stopping pattern (1.0 = same).
 
@@ -45,25 +54,22 @@ import pandas as pd
 from vcsumo.engine.campaign import Outcome, Runner, Task, run_campaign
 from vcsumo.engine.store import ResultStore, Table, atomic_csv
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
-from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
-from vcsumo.signalling.separation import RouteBraking, SeparationModel
+from vcsumo.signalling.separation import SeparationModel
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.results import ResultsFolder, file_digest, write_meta
-from vcsumo.route_profile import RouteProfile
-from vcsumo.running_time import Stop, speed_at, time_at, unhindered_run
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
-from vcsumo.studies.headway import release_km
+from vcsumo.studies.capacity_route import Case, RouteSetup, analytic_headway, check_position_m, initial_convoy_gap, leader_run, route_setup, unit_trains
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.studies.time_distance import TIME_DISTANCE_COLUMNS, TIME_DISTANCE_FILE, time_distance_table
-from vcsumo.timetable import PlannedStop, PlannedTrain
+from vcsumo.timetable import PlannedTrain
 
 PATTERNS = ("non-stop", "all-stops")
 CAPACITY_COLUMNS = [
     "line", "direction", "regime", "controller", "convoy_size", "stopping_pattern", "critical_section_km", "headway_sim_s",
-    "headway_analytic_s", "intra_convoy_gap_m", "coupled_gap_model_m", "release_speed_kmh", "capacity_trains_per_h", "gain_vs_fbs",
+    "headway_analytic_s", "intra_convoy_gap_m", "coupled_gap_model_m", "coupled_spacing_m", "convoy_formed", "release_speed_kmh", "capacity_trains_per_h", "gain_vs_fbs",
     "healthy", "min_gap_m", "min_margin_m", "gap_violations", "below_separation_time_s", "collisions", "max_impact_kmh", "stops_skipped",
     "overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops", "unhealthy_probes", "assumptions",
     "train", "release_interval_s", "deviation_pct", "block_length_m", "fixed_time_s", "emergency_brakes", "guard_interventions", "simulations",
@@ -89,121 +95,18 @@ centre decides the case with two runs.  The bracket widens (doubling) until it h
 centre and width only save simulations (Bologna–Firenze: about 4 runs per case instead of 7)."""
 
 
-@dataclass(frozen=True)
-class Case:
-    direction: str
-    regime: str
-    controller: str | None
-    convoy_size: int
-    pattern: str
+FORMED_REL = 0.10
+FORMED_ABS_M = 10.0
+"""A convoy is formed when its followers' gap at the release speed is within 10 % + 10 m of the
+spacing their stacks keep there (``coupled_spacing_m``: the certified relative-braking gap with the
+loop's delays and the controller's buffer)."""
 
 
-@dataclass
-class RouteSetup:
-    """One direction's route, release state, stops and the leader's unhindered run."""
-
-    direction: str
-    track_edges: list[str]
-    full: RouteProfile
-    release_s: float
-    v0: float
-    stops_full: list[tuple[str, str, float, float, float]]
-    """(station, platform, route position of the stop, dwell, platform length) on the full track."""
-    rel_km: float
-    approach: pd.DataFrame | None = None
-    """The unhindered supervised run from the start of the track to the release point (None: standing start)."""
-
-    def depart_speed(self, s_m: float) -> float:
-        """Release speed of a train whose front is at route position ``s_m`` (≤ the release point): the
-        supervised approach run's speed there, so a convoy follower starting in a lower limit keeps it, m/s."""
-        if self.approach is None or s_m >= self.release_s - 1e-6:
-            return self.v0
-        return min(self.v0, speed_at(self.approach, s_m))
-
-
-def _intermediate_stops(line: Line, net: BuiltNetwork, direction: str, full: RouteProfile, release_s: float) -> list[tuple[str, str, float, float, float]]:
-    topo = net.topology
-    stations = sorted(line.data.stations, key=lambda s: s.km)
-    inner = {s.id for s in stations[1:-1]}
-    out = []
-    for pid, p in topo.platforms.items():
-        if p.section != "main" or p.track != f"main_{direction}" or p.station_id not in inner:
-            continue
-        s_stop = float(full.starts_m[full.edges.index(p.edge)] + p.end_pos_m)
-        if s_stop > release_s + 1.0:
-            out.append((p.station_id, pid, s_stop, p.dwell_s, p.end_pos_m - p.start_pos_m))
-    return sorted(out, key=lambda x: x[2])
-
-
-def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float, model: SeparationModel | None = None) -> RouteSetup:
-    topo = net.topology
-    track = topo.track_for("main", direction)
-    full = RouteProfile.from_edges(topo, track.edges)
-    rel = release_km(line, direction)
-    s_rel = full.s_of("main", rel)
-    start = min(stock.length_m + 1.0, full.length_m)
-    run0 = None
-    if s_rel <= start + 1.0:
-        s_rel, v0 = start, 0.0
-    else:
-        curve = RouteBraking(model, stock, full).curve(1.5 * step_s) if model is not None else None
-        run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False, curve=curve)
-        v0 = speed_at(run0, s_rel)
-    return RouteSetup(direction, list(track.edges), full, s_rel, v0, _intermediate_stops(line, net, direction, full, s_rel), rel, run0)
-
-
-def _train_at(topo, setup: RouteSetup, stock: RollingStock, tid: str, s_depart: float, stops: list, depart_s: float, service: str) -> PlannedTrain:
-    """A planned train departing at route position ``s_depart`` of the full track (flying start)."""
-    full = setup.full
-    i0 = full.index_at(s_depart)
-    edges = setup.track_edges[i0:]
-    prof = RouteProfile.from_edges(topo, edges)
-    off = float(full.starts_m[i0])
-    pstops = [PlannedStop(pid, st, s - off, dwell, None, None, plen) for st, pid, s, dwell, plen in stops]
-    return PlannedTrain(
-        id=tid, service=service, stock=stock, edges=edges, profile=prof, depart_s=depart_s, depart_pos_m=s_depart - off,
-        depart_speed_mps=setup.depart_speed(s_depart), direction=setup.direction, stops=pstops, end_pos_m=None, start_s_m=s_depart - off, stop_at_end=False,
-    )
-
-
-def unit_trains(topo, setup: RouteSetup, stock: RollingStock, case: Case, n_units: int, h: float, initial_gap_m: float) -> list[list[PlannedTrain]]:
-    """``n_units`` units released ``h`` apart; convoy members start ``initial_gap_m`` behind each other."""
-    stops = setup.stops_full if case.pattern == "all-stops" else []
-    units = []
-    for j in range(n_units):
-        members = []
-        for k in range(case.convoy_size):
-            s_dep = setup.release_s - k * (stock.length_m + initial_gap_m)
-            if s_dep < stock.length_m + 1.0:
-                raise VcsumoError(f"convoy of {case.convoy_size} does not fit before the release point {setup.rel_km} km; move headway.release_km")
-            members.append(_train_at(topo, setup, stock, f"{case.direction}_u{j}_m{k}", s_dep, stops, j * h, f"unit{j}"))
-        units.append(members)
-    return units
-
-
-def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float, model: SeparationModel) -> pd.DataFrame:
-    """The unit leader's run alone, as the supervised SUMO driver runs it (guaranteed braking)."""
-    stops = setup.stops_full if case.pattern == "all-stops" else []
-    return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops],
-                          stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
-
-
-def check_position_m(setup: RouteSetup) -> float:
-    """Where a case's headway is checked (measuring point of the runs, end of the analytic maximum), m."""
-    return setup.full.length_m - 100.0
-
-
-def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,
-                     s_check: float):
-    """The regime's minimum headway between two units from the separation model alone
-    (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway`)."""
-    inp = HeadwayInputs(model, stock, setup.full, run, setup.full.signal_positions(net.topology), step_s, s_check)
-    return REGIMES[case.regime].analytic_headway(inp, case.convoy_size)
-
-
-def _initial_gap(model: SeparationModel, stock: RollingStock, v0: float) -> float:
-    """Starting gap inside a convoy: the separation model's coupled gap at the release speed + 20 m."""
-    return model.vc_gap(stock, stock, v0) + 20.0
+def convoy_formed(gap_m: float, spacing_m: float | None) -> bool | float:
+    """Whether a simulated intra-convoy gap is the followers' coupled spacing (NaN when either is unknown)."""
+    if spacing_m is None or math.isnan(gap_m) or math.isnan(spacing_m):
+        return math.nan
+    return bool(gap_m <= (1.0 + FORMED_REL) * spacing_m + FORMED_ABS_M)
 
 
 @dataclass
@@ -229,7 +132,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     dt = vc_step_s if case.regime == "vc" else step_s
     run = leader_run(setup, stock, case, dt, model)
     s_check = check_position_m(setup)
-    init_gap = _initial_gap(model, stock, setup.v0) if case.convoy_size > 1 else 0.0
+    init_gap = initial_convoy_gap(model, stock, setup.v0) if case.convoy_size > 1 else 0.0
     theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check)
     guess = theory.headway_s
     probes = [0]
@@ -271,6 +174,8 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
                                    min_speed_mps=SPEED_TOL_MIN_MPS)
         if driver is not None:
             pr.vc = driver.summary()  # type: ignore[attr-defined]
+            # the spacing the followers' stacks keep at the release speed (the widest of the convoy)
+            pr.spacing_m = max(driver.coupled_spacing_m(t.id, setup.v0) for u in units for t in u[1:])  # type: ignore[attr-defined]
             pr.vc_records = pd.DataFrame(driver.records)  # type: ignore[attr-defined]
         return pr
 
@@ -286,6 +191,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         rec = pr.vc_records
         cruise = rec[(rec.speed_mps - setup.v0).abs() <= 0.03 * max(setup.v0, 1.0)]
         gap = float(cruise.gap_m.median()) if len(cruise) else math.nan
+    spacing = float(getattr(pr, "spacing_m", math.nan))
     h_an, crit, blocks = theory.headway_s, theory.critical_m, theory.blocks
     # simulated headway: leaders passing the critical section in the run at the minimum interval
     tr0 = pr.sim.speed_traces  # type: ignore[attr-defined]
@@ -308,6 +214,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         "stopping_pattern": case.pattern, "critical_section_km": round(setup.full.km_at(crit)[1], 3), "headway_sim_s": round(h_sim, 2),
         "headway_analytic_s": round(h_an, 2), "intra_convoy_gap_m": round(gap, 1) if not math.isnan(gap) else math.nan,
         "coupled_gap_model_m": round(theory.coupled_gap_m, 1) if theory.coupled_gap_m is not None else math.nan,
+        "coupled_spacing_m": round(spacing, 1), "convoy_formed": convoy_formed(gap, spacing) if case.convoy_size > 1 else math.nan,
         "release_speed_kmh": round(3.6 * setup.v0, 1),
         "capacity_trains_per_h": round(3600.0 * case.convoy_size / h_sim, 2), "gain_vs_fbs": math.nan,
         "min_gap_m": summ["min_gap_m"], "gap_violations": summ["gap_violations"], "collisions": summ["collisions"], "train": stock.name,

@@ -110,6 +110,7 @@ class RunConfig(CommandConfig):
     seed: Seed = 42
     end_time: Annotated[float | None, Field(default=None, gt=0, le=WEEK_S, json_schema_extra={"unit": "s"},
                                             description="Stop the simulation at this time, HH:MM[:SS] or s (at most one week; default: when every train has arrived)")] = None
+    sumo_fcd: bool = Field(default=False, description="Also write SUMO's fcd.xml (the same 1 s samples as trajectories.csv; off by default)")
     out: Out = None
 
     @field_validator("end_time", mode="before")

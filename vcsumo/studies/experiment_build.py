@@ -21,7 +21,7 @@ from vcsumo.control.cbf import BarrierModel, CBFConfig
 from vcsumo.control.channel import ChannelConfig, Degradation, Window
 from vcsumo.control.consensus import CbcParams
 from vcsumo.control.cruise import CruiseConfig, PositionReferenceGenerator
-from vcsumo.control.dp_profile import route_profile_from_arrays
+from vcsumo.control.route_lookup import route_profile_from_arrays
 from vcsumo.control.mpc import MPCSettings
 from vcsumo.control.params import is_path_spec, resolve_params
 from vcsumo.control.proxies import BoxBounds, sample_params

@@ -12,9 +12,9 @@ set**:
 * each regime's minimum headway comes from the separation model alone
   (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway`), on the line's route and the
   unit leader's unhindered run with guaranteed braking, exactly as the capacity study predicts its
-  cases (:func:`vcsumo.studies.capacity.route_setup`, :func:`~vcsumo.studies.capacity.leader_run`,
-  :func:`~vcsumo.studies.capacity.analytic_headway`, checked at
-  :func:`~vcsumo.studies.capacity.check_position_m`; FBS and MB at the SUMO step ``step_s``, VC at
+  cases (:func:`vcsumo.studies.capacity_route.route_setup`, :func:`~vcsumo.studies.capacity_route.leader_run`,
+  :func:`~vcsumo.studies.capacity_route.analytic_headway`, checked at
+  :func:`~vcsumo.studies.capacity_route.check_position_m`; FBS and MB at the SUMO step ``step_s``, VC at
   ``vc_step_s``, whose 1.5 steps the supervision adds to the dead time);
 * capacity = 3600·n / headway, trains/h (every train of a convoy counts); ``gain_vs_fbs`` and
   ``gain_vs_mb`` against FBS and MB at the same value.
@@ -54,7 +54,7 @@ from vcsumo.rolling_stock import RollingStock
 from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.studies.capacity import Case, analytic_headway, check_position_m, leader_run, route_setup
+from vcsumo.studies.capacity_route import Case, analytic_headway, check_position_m, leader_run, route_setup
 
 SWEPT = ("t2t_delay_bound_s", "braking_uncertainty", "position_error_m")
 """Assumptions the study sweeps (fields of :class:`~vcsumo.signalling.assumptions.AssumptionSet`)."""

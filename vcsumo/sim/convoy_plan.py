@@ -1,0 +1,111 @@
+"""Convoys as the timetable declares them, before the VC driver runs them: the channel settings,
+the convoys' member trains, their departures together from a shared platform and their stops
+aligned (a convoy leaves a station together).  :class:`vcsumo.sim.vc_driver.VCDriver` drives them."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from vcsumo.config import load_model
+from vcsumo.control.channel import ChannelConfig
+from vcsumo.control.params import resolve_params
+from vcsumo.errors import InputError
+from vcsumo.running_time import unhindered_run
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
+from vcsumo.timetable import PlannedTrain, TimetableFile
+
+
+def load_channel(spec: str | Path | None, field: str | None = "--channel", base_dir: str | Path | None = None) -> ChannelConfig:
+    """Channel settings: a YAML file, a name in controllers/ (default ``channel``)."""
+    return load_model(ChannelConfig, resolve_params(spec, "channel", field, base_dir, kind="channel"))
+
+
+# -------------------------------------------------------------------------------------------
+# Convoys from the timetable
+
+
+def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[PlannedTrain]) -> list[list[PlannedTrain]]:
+    """Convoys as lists of planned trains (leader first); repeated services pair up by index."""
+    by_service: dict[str, list[PlannedTrain]] = {}
+    for t in trains:
+        by_service.setdefault(t.service, []).append(t)
+    out: list[list[PlannedTrain]] = []
+    used: set[str] = set()
+    for c_i, cv in enumerate(tt.convoys):
+        counts = {s: len(by_service.get(s, [])) for s in cv.services}
+        for s_i, s in enumerate(cv.services):
+            if counts[s] == 0:
+                raise InputError(tt_path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{s}', which does not exist")
+            if s in used:
+                raise InputError(tt_path, f"convoys[{c_i}].services[{s_i}]", f"service '{s}' is already in another convoy")
+        if len(set(counts.values())) != 1:
+            raise InputError(tt_path, f"convoys[{c_i}].services", f"services of convoy '{cv.id}' repeat a different number of times: {counts}")
+        used |= set(cv.services)
+        for k in range(next(iter(counts.values()))):
+            members = [by_service[s][k] for s in cv.services]
+            shared = set(members[0].edges)
+            for m in members[1:]:
+                if not shared & set(m.edges):
+                    raise InputError(tt_path, f"convoys[{c_i}]", f"trains of convoy '{cv.id}' share no track ({members[0].id} / {m.id})")
+            out.append(members)
+    if not out:
+        raise InputError(tt_path, "convoys", "the vc regime needs at least one convoy in the timetable (convoys: [{id, services: [leader, follower]}])")
+    return out
+
+
+
+def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
+                              window_s: float = 300.0) -> None:
+    """Members leaving the leader's platform within ``window_s`` depart with it, standing behind it.
+
+    The follower's front is placed ``standstill_gap_m`` behind the rear of the train ahead on the
+    same departure edge.  If the convoy does not stand in that edge, the follower departs from its
+    own position as soon as the train ahead has cleared it by the standstill gap (its unhindered
+    start, with ``model``'s guaranteed braking; SUMO would otherwise insert it a few metres behind).
+    """
+    for members in convoys:
+        for k in range(1, len(members)):
+            ego, ahead = members[k], members[k - 1]
+            if ego.edges[0] != ahead.edges[0] or abs(ego.depart_s - ahead.depart_s) > window_s or ahead.depart_speed_mps > 0:
+                continue
+            gap = standstill_gap_m.get(ego.id, 10.0)
+            pos = ahead.depart_pos_m - ahead.stock.length_m - gap
+            if pos >= ego.stock.length_m:
+                ego.depart_s = ahead.depart_s
+                ego.depart_pos_m = pos
+                ego.start_s_m = pos
+                continue
+            if model is None or abs(ego.depart_pos_m - ahead.depart_pos_m) > 1.0:
+                continue
+            from vcsumo.running_time import time_at
+
+            run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=ahead.start_s_m + ahead.stock.length_m + gap + 1.0,
+                                 stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
+            clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
+            ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
+
+
+MIN_CONVOY_DWELL_S = 5.0
+"""A follower released from a shared stop with its leader has stood there at least this long, s."""
+
+
+def align_convoy_stops(convoys: list[list[PlannedTrain]], window_s: float = 300.0) -> dict[str, int]:
+    """A convoy leaves a station it stops at together: a follower's scheduled departure from a station
+    its predecessor also stops at is brought forward to the predecessor's when it is at most
+    ``window_s`` later (a timetable written "follower 30 s behind" would otherwise keep it 30 s
+    behind for ever: it cannot run faster than its leader at the line speed).  Returns the number
+    of departures moved per follower."""
+    moved: dict[str, int] = {}
+    for members in convoys:
+        for k in range(1, len(members)):
+            ego, ahead = members[k], members[k - 1]
+            dep = {x.station: x.departure_s for x in ahead.stops if x.departure_s is not None}
+            n = 0
+            for x in ego.stops:
+                d = dep.get(x.station)
+                if d is not None and x.departure_s is not None and 0.0 < x.departure_s - d <= window_s:
+                    x.departure_s = d
+                    n += 1
+            moved[ego.id] = n
+    return moved

@@ -1,0 +1,141 @@
+"""The capacity study's cases on one direction's route: where units are released, how fast, with
+which stops; the planned trains of a probe; the leader's unhindered run and the regime's analytic
+headway on it (:mod:`vcsumo.studies.capacity` runs the cases)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pandas as pd
+
+from vcsumo.errors import VcsumoError
+from vcsumo.line import Line
+from vcsumo.rolling_stock import RollingStock
+from vcsumo.route_profile import RouteProfile
+from vcsumo.running_time import Stop, speed_at, unhindered_run
+from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
+from vcsumo.sim.network import BuiltNetwork
+from vcsumo.studies.headway import release_km
+from vcsumo.timetable import PlannedStop, PlannedTrain
+
+
+@dataclass(frozen=True)
+class Case:
+    direction: str
+    regime: str
+    controller: str | None
+    convoy_size: int
+    pattern: str
+
+
+@dataclass
+class RouteSetup:
+    """One direction's route, release state, stops and the leader's unhindered run."""
+
+    direction: str
+    track_edges: list[str]
+    full: RouteProfile
+    release_s: float
+    v0: float
+    stops_full: list[tuple[str, str, float, float, float]]
+    """(station, platform, route position of the stop, dwell, platform length) on the full track."""
+    rel_km: float
+    approach: pd.DataFrame | None = None
+    """A supervised run over the track before the release point entered at the permitted speed (a
+    train already running when the track begins; None: standing start at the release point)."""
+
+    def depart_speed(self, s_m: float) -> float:
+        """Release speed of a train whose front is at route position ``s_m`` (≤ the release point):
+        the release speed, at most what the flying approach run has there — a convoy follower
+        starting in a lower limit (or on the braking curve to one) keeps to it, m/s."""
+        if self.approach is None or s_m >= self.release_s - 1e-6:
+            return self.v0
+        return min(self.v0, speed_at(self.approach, s_m))
+
+
+def intermediate_stops(line: Line, net: BuiltNetwork, direction: str, full: RouteProfile, release_s: float) -> list[tuple[str, str, float, float, float]]:
+    topo = net.topology
+    stations = sorted(line.data.stations, key=lambda s: s.km)
+    inner = {s.id for s in stations[1:-1]}
+    out = []
+    for pid, p in topo.platforms.items():
+        if p.section != "main" or p.track != f"main_{direction}" or p.station_id not in inner:
+            continue
+        s_stop = float(full.starts_m[full.edges.index(p.edge)] + p.end_pos_m)
+        if s_stop > release_s + 1.0:
+            out.append((p.station_id, pid, s_stop, p.dwell_s, p.end_pos_m - p.start_pos_m))
+    return sorted(out, key=lambda x: x[2])
+
+
+def route_setup(line: Line, net: BuiltNetwork, stock: RollingStock, direction: str, step_s: float, model: SeparationModel | None = None) -> RouteSetup:
+    topo = net.topology
+    track = topo.track_for("main", direction)
+    full = RouteProfile.from_edges(topo, track.edges)
+    rel = release_km(line, direction)
+    s_rel = full.s_of("main", rel)
+    start = min(stock.length_m + 1.0, full.length_m)
+    run0 = None
+    if s_rel <= start + 1.0:
+        s_rel, v0 = start, 0.0
+    else:
+        curve = RouteBraking(model, stock, full).curve(1.5 * step_s) if model is not None else None
+        # the release speed: what a train starting at the track's beginning reaches at the release point
+        v0 = speed_at(unhindered_run(stock.params(), full, dt=step_s, s0=start, end_s=s_rel + 1.0, stop_at_end=False, curve=curve), s_rel)
+        v_enter = min(full.speed_limit_train(start, stock.length_m), stock.params().max_speed_ms)
+        run0 = unhindered_run(stock.params(), full, dt=step_s, s0=start, v0=v_enter, end_s=s_rel + 1.0, stop_at_end=False, curve=curve)
+    return RouteSetup(direction, list(track.edges), full, s_rel, v0, intermediate_stops(line, net, direction, full, s_rel), rel, run0)
+
+
+def train_at(topo, setup: RouteSetup, stock: RollingStock, tid: str, s_depart: float, stops: list, depart_s: float, service: str) -> PlannedTrain:
+    """A planned train departing at route position ``s_depart`` of the full track (flying start)."""
+    full = setup.full
+    i0 = full.index_at(s_depart)
+    edges = setup.track_edges[i0:]
+    prof = RouteProfile.from_edges(topo, edges)
+    off = float(full.starts_m[i0])
+    pstops = [PlannedStop(pid, st, s - off, dwell, None, None, plen) for st, pid, s, dwell, plen in stops]
+    return PlannedTrain(
+        id=tid, service=service, stock=stock, edges=edges, profile=prof, depart_s=depart_s, depart_pos_m=s_depart - off,
+        depart_speed_mps=setup.depart_speed(s_depart), direction=setup.direction, stops=pstops, end_pos_m=None, start_s_m=s_depart - off, stop_at_end=False,
+    )
+
+
+def unit_trains(topo, setup: RouteSetup, stock: RollingStock, case: Case, n_units: int, h: float, initial_gap_m: float) -> list[list[PlannedTrain]]:
+    """``n_units`` units released ``h`` apart; convoy members start ``initial_gap_m`` behind each other."""
+    stops = setup.stops_full if case.pattern == "all-stops" else []
+    units = []
+    for j in range(n_units):
+        members = []
+        for k in range(case.convoy_size):
+            s_dep = setup.release_s - k * (stock.length_m + initial_gap_m)
+            if s_dep < stock.length_m + 1.0:
+                raise VcsumoError(f"convoy of {case.convoy_size} does not fit before the release point {setup.rel_km} km; move headway.release_km")
+            members.append(train_at(topo, setup, stock, f"{case.direction}_u{j}_m{k}", s_dep, stops, j * h, f"unit{j}"))
+        units.append(members)
+    return units
+
+
+def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float, model: SeparationModel) -> pd.DataFrame:
+    """The unit leader's run alone, as the supervised SUMO driver runs it (guaranteed braking)."""
+    stops = setup.stops_full if case.pattern == "all-stops" else []
+    return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops],
+                          stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
+
+
+def check_position_m(setup: RouteSetup) -> float:
+    """Where a case's headway is checked (measuring point of the runs, end of the analytic maximum), m."""
+    return setup.full.length_m - 100.0
+
+
+def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,
+                     s_check: float):
+    """The regime's minimum headway between two units from the separation model alone
+    (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway`)."""
+    inp = HeadwayInputs(model, stock, setup.full, run, setup.full.signal_positions(net.topology), step_s, s_check)
+    return REGIMES[case.regime].analytic_headway(inp, case.convoy_size)
+
+
+def initial_convoy_gap(model: SeparationModel, stock: RollingStock, v0: float) -> float:
+    """Starting gap inside a convoy: the separation model's coupled gap at the release speed + 20 m."""
+    return model.vc_gap(stock, stock, v0) + 20.0
