@@ -39,6 +39,7 @@ import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
 from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
@@ -46,8 +47,9 @@ from vcsumo.control.base import Command, Observation
 from vcsumo.dynamics import acceleration, brake_force_limit, gradient_force, running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.signalling.assumptions import load_assumptions
-from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, leader_worst_state
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, leader_worst_state
+from vcsumo.units import G
 
 
 class GuardConfig(StrictModel):
@@ -89,18 +91,151 @@ def predecessor_estimate(obs: Observation, predecessor_length_m: float, sensor: 
 
 
 # -------------------------------------------------------------------------------------------
+# The follower's brake build-up
+
+
+class BrakeBuildUp:
+    """How long a train takes from the force it applies to its guaranteed brake, and its force
+    one step ahead — bounded over its uncertainty box (mass, Davis A, brakes).
+
+    :meth:`actuation_time` is the equivalent dead time of the force lag τ and the jerk limit j from
+    the applied force F to the guaranteed brake of the relative-braking rule (the assumption set's
+    ``relative_braking`` kind at the bottom of its range, b per mass): τ + (F/M + b)/(2j), with M̲
+    for a traction force and M̄ for a brake force, 0 once F ≤ −b·M̄ — the CBF's
+    (:meth:`vcsumo.control.cbf_barrier.SeparationBarrier.actuation_time`): a jerk-limited ramp of
+    duration R brakes at every moment at least as much as holding F for R/2 and then braking fully,
+    a first-order lag τ at least as much as holding F for τ.  From full traction that is the longest
+    (ETR1000: 0.5 + (0.94 + 1.08)/1.4 ≈ 1.94 s), from coasting less (≈ 1.27 s).
+
+    :meth:`next_force` is the largest force the plant can apply one step after a command (eq. 1c
+    lag with Euler step min(1, Δt/τ), then eq. 4c jerk limit j·M·Δt; the plant's service envelope
+    never asks less braking than a command above the guaranteed service force, its emergency
+    brake at least M̲ times the bottom of the emergency range); :meth:`command_for` inverts the lag.
+    """
+
+    def __init__(self, stock: RollingStock, assumptions: AssumptionSet):
+        p = stock.params()
+        box = stock.uncertainty_box()
+        self.lag_s = max(float(p.traction_lag_s), 0.0)
+        self.jerk_mps3 = float(p.max_jerk_mps3) if math.isfinite(p.max_jerk_mps3) and p.max_jerk_mps3 > 0 else math.inf
+        self.m_low, self.m_high = box.mass_kg.low, box.mass_kg.high
+        self.rho = p.rotating_mass_factor
+        self.davis_a_low_n = box.davis_a_n.low
+        self.brake_mps2 = brake_range(stock, assumptions, assumptions.relative_braking)[0]
+        """The guaranteed brake of the relative-braking rule, force per mass (bottom of its range), m/s²."""
+        self.emergency_low_n = self.m_low * brake_range(stock, assumptions, "emergency")[0]
+        bp = box.max_brake_power_w.low if box.max_brake_power_w is not None else p.max_brake_power_w
+        self.service_low = p.with_(mass_kg=self.m_low, service_brake_decel_mps2=brake_range(stock, assumptions, "service")[0], max_brake_power_w=bp)
+        """The train with its guaranteed service-brake force (the bottom of mass, rate and power)."""
+        self.full_traction_n = self.m_high * box.max_accel_mps2.high
+
+    def actuation_time(self, force_n: float | None) -> float:
+        """Equivalent dead time from the applied force ``force_n`` (None: full traction) to the
+        guaranteed brake, s (0 for a train without lag and jerk limit, or once the brake is applied)."""
+        if self.lag_s <= 0.0 and math.isinf(self.jerk_mps3):
+            return 0.0
+        f = self.full_traction_n if force_n is None else float(force_n)
+        per_mass = f / (self.m_low if f > 0.0 else self.m_high) + self.brake_mps2
+        if per_mass <= 1e-9:
+            return 0.0
+        return self.lag_s + (0.5 * per_mass / self.jerk_mps3 if math.isfinite(self.jerk_mps3) else 0.0)
+
+    def hold_accel(self, force_n: float, descent: float) -> float:
+        """The largest acceleration while the force ``force_n`` (its traction part) is held, on a
+        descent of ``descent`` (rise/run ≥ 0), without resistance, m/s²."""
+        return max(force_n, 0.0) / (self.rho * self.m_low) + G * max(descent, 0.0) / self.rho
+
+    def service_force_n(self, v_mps: float) -> float:
+        """The service-brake force the train is sure to have at speed v, N (positive)."""
+        return float(brake_force_limit(self.service_low, max(v_mps, 0.0)))
+
+    def lag_alpha(self, dt: float) -> float:
+        return min(1.0, dt / self.lag_s) if self.lag_s > 0.0 else 1.0
+
+    def next_force(self, force_n: float, command_n: float, dt: float, emergency: bool, v_mps: float) -> float:
+        """The largest force the plant applies one step after ``command_n`` from ``force_n``, N."""
+        target = -self.emergency_low_n if emergency else max(command_n, -self.service_force_n(v_mps))
+        f = force_n + self.lag_alpha(dt) * (target - force_n)
+        if math.isfinite(self.jerk_mps3):
+            f = max(f, force_n - self.jerk_mps3 * self.m_low * dt) if f < force_n else min(f, force_n + self.jerk_mps3 * self.m_high * dt)
+        return f
+
+    def command_for(self, force_n: float, next_force_n: float, dt: float) -> float:
+        """The command whose lagged force one step later is ``next_force_n`` (the lag inverted), N."""
+        return force_n + (next_force_n - force_n) / self.lag_alpha(dt)
+
+
+# -------------------------------------------------------------------------------------------
 # The filter stage
 
 
+class NextStepSeparation:
+    """The guard's separation test at one step: does a force applied one step from now keep the
+    relative-braking rule after the brake build-up from that force?  (See the module doc.)"""
+
+    def __init__(self, guard: "SeparationGuard", obs: Observation, pred: PredecessorEstimate):
+        self.rule, _ = guard._rule(obs.profile)
+        self.build = guard.build_up
+        self.dt = obs.step_s
+        p = obs.params
+        s, self.v = obs.ego.position_m, obs.ego.speed_mps
+        self.s1 = s + self.v * self.dt  # explicit Euler (eq. 6b): the position advances with the present speed
+        self.grade = obs.profile.mean_gradient(s, p.length_m)
+        self.dead_s = guard.model.dead_time_s + 0.5 * self.dt  # + the Euler overshoot of a Δt-sampled braking
+        f = self.rule.follower
+        self._x, self._g = f.x, f.g_low
+        self._descent_all = max(0.0, -float(np.min(f.g_low)))
+        if pred.source == "none":  # nothing known: the predecessor may stand at the follower's front
+            self.s_l, self.v_l, self.room = s, 0.0, -math.inf
+        else:  # where the predecessor is at the least one step from now, having braked as hard as it can since its time stamp
+            a_l = self.rule.leader.decel_at(pred.front_m, pred.speed_mps)
+            moved, self.v_l = leader_worst_state(pred.speed_mps, a_l, pred.age_s + self.dt)
+            self.s_l = pred.front_m + moved
+            gap = self.s_l - guard.predecessor.length_m - self.s1 - max(0.0, guard.d_min_m - guard.model.margin_m)
+            self.room = gap - guard.model.margin_m
+
+    def _descent(self, s0: float, s1: float) -> float:
+        """The steepest descent under the train while its front runs over [s0, s1] (rise/run ≥ 0)."""
+        x = self._x
+        i0 = min(max(int(np.searchsorted(x, s0, side="right")) - 1, 0), len(self._g) - 1)
+        i1 = min(max(int(np.searchsorted(x, s1, side="right")) - 1, i0), len(self._g) - 1)
+        return max(0.0, -float(np.min(self._g[i0: i1 + 1])))
+
+    def state(self, next_force_n: float) -> tuple[float, float, float]:
+        """(speed, dead time, the follower's speed one step ahead) of the rule's follower when the
+        plant applies ``next_force_n`` one step from now: the set's dead time + the build-up from
+        that force (+ half a step), at the speed it may reach by then (the force's traction part held
+        and the steepest descent on the way, no resistance beyond Davis A̲)."""
+        b = self.build
+        net = next_force_n - b.davis_a_low_n
+        a1 = net / (b.rho * (b.m_low if net > 0.0 else b.m_high)) - G * self.grade / b.rho
+        v1 = max(0.0, self.v + self.dt * a1)
+        t_act = b.actuation_time(next_force_n)
+        if t_act > 0.0:
+            reach = v1 * t_act + 0.5 * b.hold_accel(next_force_n, self._descent_all) * t_act * t_act
+            v_dead = v1 + b.hold_accel(next_force_n, self._descent(self.s1, self.s1 + reach)) * t_act
+        else:
+            v_dead = v1
+        return v_dead, self.dead_s + t_act, v1
+
+    def closing(self, next_force_n: float) -> float:
+        """The rule's worst closing from one step ahead under ``next_force_n``, m."""
+        v_dead, dead, _ = self.state(next_force_n)
+        return self.rule.closing(self.s1, v_dead, self.s_l, self.v_l, dead)
+
+    def fits(self, next_force_n: float) -> bool:
+        return self.room >= 0.0 and self.closing(next_force_n) <= self.room
+
+
 class SeparationGuard:
-    """Force filter ``limit(obs, cmd) -> Command`` keeping the guard speed (see the module doc).
+    """Force filter ``limit(obs, cmd) -> Command`` (see the module doc).
 
     ``follower``/``predecessor``: the two trains' rolling stock (their models and uncertainty boxes);
     ``d_min_m``: the stack's minimum safe gap (kept where it exceeds the model's margin and position
     errors); ``model``: the separation model (its assumption set); ``config``: whether a sensor is
     trusted.  ``interventions`` counts the steps it lowered the command; ``last_speed_mps`` is the
-    latest step's guard speed where it bound (else the speed the command reaches: the guard is only
-    searched as far as asked) and ``last_force_in_n`` its incoming force."""
+    nominal one-step speed under its output when it bound (else the speed the command reaches) and
+    ``last_force_in_n`` its incoming force."""
 
     def __init__(self, follower: RollingStock, predecessor: RollingStock, d_min_m: float, config: GuardConfig | None = None,
                  model: SeparationModel | None = None):
@@ -111,6 +246,7 @@ class SeparationGuard:
         self.d_min_m = float(d_min_m)
         self.cfg = config or GuardConfig()
         self.model = model or SeparationModel(load_assumptions())
+        self.build_up = BrakeBuildUp(follower, self.model.assumptions)
         self.interventions = 0
         self.last_speed_mps = math.nan
         self.last_force_in_n = math.nan
@@ -124,23 +260,22 @@ class SeparationGuard:
             self._rules = {id(profile): r}
         return r
 
-    def speed_limit(self, obs: Observation, pred: PredecessorEstimate, v_cap_mps: float = math.inf) -> float:
-        """The guard speed for the next step, m/s (at most ``v_cap_mps``: only as far as asked)."""
-        rule, service = self._rule(obs.profile)
+    def separation(self, obs: Observation, pred: PredecessorEstimate | None = None) -> NextStepSeparation:
+        """The step's separation test (on what the follower knows of its predecessor)."""
+        if pred is None:
+            pred = predecessor_estimate(obs, self.predecessor_params.length_m, self.cfg.sensor)
+        return NextStepSeparation(self, obs, pred)
+
+    def line_speed(self, obs: Observation, v_cap_mps: float = math.inf) -> float:
+        """The speed the line allows for the next step, m/s (at most ``v_cap_mps``): approaching its own
+        stop (``Observation.next_stop_m``) the guaranteed service-brake curve to it, and everywhere
+        :meth:`limit_speed`."""
+        _, service = self._rule(obs.profile)
         s, dt = obs.ego.position_m, obs.step_s
-        v_max = min(v_cap_mps, 200.0)
-        dead = self.model.dead_time_s + 1.5 * dt
-        if pred.source == "none":  # nothing known: the predecessor may stand at the follower's front
-            v_guard = 0.0
-        else:
-            a_l = rule.leader.decel_at(pred.front_m, pred.speed_mps)
-            moved, v_l = leader_worst_state(pred.speed_mps, a_l, pred.age_s)
-            s_l = pred.front_m + moved
-            gap = s_l - self.predecessor.length_m - s - max(0.0, self.d_min_m - self.model.margin_m)
-            v_guard = rule.max_speed(s, gap, s_l, v_l, dead, v_max)
-        if obs.next_stop_m is not None:  # its own stop: the guaranteed service-brake curve to it
-            v_guard = min(v_guard, service.permitted_speed(s, obs.next_stop_m, 0.0, 1.5 * dt, obs.ego.speed_mps))
-        return min(v_guard, self.limit_speed(obs, service))
+        v = v_cap_mps
+        if obs.next_stop_m is not None:
+            v = min(v, service.permitted_speed(s, obs.next_stop_m, 0.0, 1.5 * dt, obs.ego.speed_mps))
+        return min(v, self.limit_speed(obs, service))
 
     def limit_speed(self, obs: Observation, service: RouteBraking) -> float:
         """The permitted speed of the line: the limit under the whole train now, and the guaranteed
@@ -167,19 +302,42 @@ class SeparationGuard:
         tf = prof.tunnel_factor_at(s)
         f_eb = -p.mass_kg * p.emergency_brake_decel_mps2  # the train brakes at most with its emergency brake
         force_in = float(cmd.force_n)
+        force = max(force_in, f_eb)
         v_floor = max(0.0, v + dt * float(acceleration(p, v, f_eb, grad, tf)))
-        v_cmd = max(v_floor, v + dt * float(acceleration(p, v, force_in, grad, tf)))
-        v_guard = self.speed_limit(obs, predecessor_estimate(obs, self.predecessor_params.length_m, self.cfg.sensor), v_cmd + 1e-6)
-        self.last_speed_mps, self.last_force_in_n = v_guard, force_in
-        if v_cmd <= v_guard + 1e-9:
+        v_cmd = max(v_floor, v + dt * float(acceleration(p, v, force, grad, tf)))
+        self.last_force_in_n = force_in
+        # 1. the line: its limits and the follower's own stop (braking curves on speed)
+        v_line = self.line_speed(obs, v_cmd + 1e-6)
+        if v_cmd > v_line + 1e-9:
+            force = max(min(self._force_for(p, v, max(v_line, v_floor), dt, grad, tf), force), f_eb)
+        # 2. the separation: the force one step ahead keeps the relative-braking rule after its build-up
+        build, f0 = self.build_up, float(obs.ego.force_n)
+        sep = self.separation(obs)
+        emergency = cmd.emergency or force < -build.service_force_n(v) - 1e-6
+        if not sep.fits(build.next_force(f0, force, dt, emergency, v)):
+            floor = build.next_force(f0, f_eb, dt, True, v)
+            if sep.fits(floor):  # the largest force one step ahead that fits, and the command that gives it
+                lo, hi = floor, build.next_force(f0, force, dt, emergency, v)
+                for _ in range(40):
+                    if hi - lo <= 1.0:
+                        break
+                    mid = 0.5 * (lo + hi)
+                    lo, hi = (mid, hi) if sep.fits(mid) else (lo, mid)
+                force = max(min(build.command_for(f0, lo, dt), force), f_eb)
+            else:  # outside the rule already: brake as hard as the train can, to a stand (and hold it there)
+                force = max(min(self._force_for(p, v, v_floor, dt, grad, tf), force), f_eb)
+        if force >= force_in - 1e-9:
+            self.last_speed_mps = v_cmd
             return cmd if force_in >= f_eb else replace(cmd, force_n=f_eb)
         self.interventions += 1
-        v_target = max(v_guard, v_floor)
-        # the force that gives v_target after one step (eq. 1b solved for u)
-        force = p.mass_kg * p.rotating_mass_factor * (v_target - v) / dt + float(running_resistance(p, v, tf)) + float(gradient_force(p, grad))
-        force = max(min(force, force_in), f_eb)
-        emergency = cmd.emergency or force < -float(brake_force_limit(p, max(v, 0.0))) - 1e-6
-        return replace(cmd, force_n=force, emergency=emergency, info={**cmd.info, "guard_speed_mps": v_guard})
+        self.last_speed_mps = v_out = max(v_floor, v + dt * float(acceleration(p, v, force, grad, tf)))
+        emergency = cmd.emergency or force < -build.service_force_n(v) - 1e-6
+        return replace(cmd, force_n=force, emergency=emergency, info={**cmd.info, "guard_speed_mps": v_out})
+
+    @staticmethod
+    def _force_for(p, v: float, v_target: float, dt: float, grad: float, tf: float) -> float:
+        """The force that gives ``v_target`` after one step (eq. 1b solved for u), N."""
+        return p.mass_kg * p.rotating_mass_factor * (v_target - v) / dt + float(running_resistance(p, v, tf)) + float(gradient_force(p, grad))
 
 
-__all__ = ["GuardConfig", "load_guard", "PredecessorEstimate", "predecessor_estimate", "SeparationGuard"]
+__all__ = ["GuardConfig", "load_guard", "PredecessorEstimate", "predecessor_estimate", "BrakeBuildUp", "NextStepSeparation", "SeparationGuard"]
