@@ -145,6 +145,23 @@ class BrakeBuildUp:
         descent of ``descent`` (rise/run ≥ 0), without resistance, m/s²."""
         return max(force_n, 0.0) / (self.rho * self.m_low) + G * max(descent, 0.0) / self.rho
 
+    def held(self, braking: RouteBraking | None, s_m: float, v_mps: float, force_n: float) -> tuple[float, float]:
+        """(speed, dead time) of the build-up from ``force_n`` applied at (s, v): the equivalent dead
+        time :meth:`actuation_time` and the speed reached by its end with the force's traction part
+        held, on the steepest descent under the train over the distance it runs meanwhile
+        (``braking``: the train's guaranteed braking on its route, :class:`RouteBraking`; None: level
+        track), m/s and s."""
+        t_act = self.actuation_time(force_n)
+        if t_act <= 0.0:
+            return v_mps, 0.0
+        if braking is None:
+            return v_mps + self.hold_accel(force_n, 0.0) * t_act, t_act
+        x, g = braking.x, braking.g_low
+        reach = v_mps * t_act + 0.5 * self.hold_accel(force_n, max(0.0, -float(np.min(g)))) * t_act * t_act
+        i0 = min(max(int(np.searchsorted(x, s_m, side="right")) - 1, 0), len(g) - 1)
+        i1 = min(max(int(np.searchsorted(x, s_m + reach, side="right")) - 1, i0), len(g) - 1)
+        return v_mps + self.hold_accel(force_n, max(0.0, -float(np.min(g[i0: i1 + 1])))) * t_act, t_act
+
     def service_force_n(self, v_mps: float) -> float:
         """The service-brake force the train is sure to have at speed v, N (positive)."""
         return float(brake_force_limit(self.service_low, max(v_mps, 0.0)))
@@ -182,40 +199,25 @@ class NextStepSeparation:
         self.s1 = s + self.v * self.dt  # explicit Euler (eq. 6b): the position advances with the present speed
         self.grade = obs.profile.mean_gradient(s, p.length_m)
         self.dead_s = guard.model.dead_time_s + 0.5 * self.dt  # + the Euler overshoot of a Δt-sampled braking
-        f = self.rule.follower
-        self._x, self._g = f.x, f.g_low
-        self._descent_all = max(0.0, -float(np.min(f.g_low)))
         if pred.source == "none":  # nothing known: the predecessor may stand at the follower's front
             self.s_l, self.v_l, self.room = s, 0.0, -math.inf
         else:  # where the predecessor is at the least one step from now, having braked as hard as it can since its time stamp
             a_l = self.rule.leader.decel_at(pred.front_m, pred.speed_mps)
             moved, self.v_l = leader_worst_state(pred.speed_mps, a_l, pred.age_s + self.dt)
             self.s_l = pred.front_m + moved
-            gap = self.s_l - guard.predecessor.length_m - self.s1 - max(0.0, guard.d_min_m - guard.model.margin_m)
+            gap = self.s_l - guard.predecessor.length_m - self.s1 - max(0.0, guard.d_min_m - guard.model.margin_m) - 2.0 * guard.position_error_m
             self.room = gap - guard.model.margin_m
-
-    def _descent(self, s0: float, s1: float) -> float:
-        """The steepest descent under the train while its front runs over [s0, s1] (rise/run ≥ 0)."""
-        x = self._x
-        i0 = min(max(int(np.searchsorted(x, s0, side="right")) - 1, 0), len(self._g) - 1)
-        i1 = min(max(int(np.searchsorted(x, s1, side="right")) - 1, i0), len(self._g) - 1)
-        return max(0.0, -float(np.min(self._g[i0: i1 + 1])))
 
     def state(self, next_force_n: float) -> tuple[float, float, float]:
         """(speed, dead time, the follower's speed one step ahead) of the rule's follower when the
         plant applies ``next_force_n`` one step from now: the set's dead time + the build-up from
-        that force (+ half a step), at the speed it may reach by then (the force's traction part held
-        and the steepest descent on the way, no resistance beyond Davis A̲)."""
+        that force (:meth:`BrakeBuildUp.held`) + half a step, at the speed it may reach by then (no
+        resistance beyond Davis A̲)."""
         b = self.build
         net = next_force_n - b.davis_a_low_n
         a1 = net / (b.rho * (b.m_low if net > 0.0 else b.m_high)) - G * self.grade / b.rho
         v1 = max(0.0, self.v + self.dt * a1)
-        t_act = b.actuation_time(next_force_n)
-        if t_act > 0.0:
-            reach = v1 * t_act + 0.5 * b.hold_accel(next_force_n, self._descent_all) * t_act * t_act
-            v_dead = v1 + b.hold_accel(next_force_n, self._descent(self.s1, self.s1 + reach)) * t_act
-        else:
-            v_dead = v1
+        v_dead, t_act = b.held(self.rule.follower, self.s1, v1, next_force_n)
         return v_dead, self.dead_s + t_act, v1
 
     def closing(self, next_force_n: float) -> float:
@@ -233,17 +235,20 @@ class SeparationGuard:
     ``follower``/``predecessor``: the two trains' rolling stock (their models and uncertainty boxes);
     ``d_min_m``: the stack's minimum safe gap (kept where it exceeds the model's margin and position
     errors); ``model``: the separation model (its assumption set); ``config``: whether a sensor is
-    trusted.  ``interventions`` counts the steps it lowered the command; ``last_speed_mps`` is the
+    trusted; ``position_error_m``: the bound e_s of the odometry error of each train's measured
+    position (Felez eq. 9) — the positions it works on are measured, and the rule (its margin
+    included) is kept on the true ones.  ``interventions`` counts the steps it lowered the command; ``last_speed_mps`` is the
     nominal one-step speed under its output when it bound (else the speed the command reaches) and
     ``last_force_in_n`` its incoming force."""
 
     def __init__(self, follower: RollingStock, predecessor: RollingStock, d_min_m: float, config: GuardConfig | None = None,
-                 model: SeparationModel | None = None):
+                 model: SeparationModel | None = None, position_error_m: float = 0.0):
         self.follower = follower
         self.predecessor = predecessor
         self.follower_params = follower.params()
         self.predecessor_params = predecessor.params()
         self.d_min_m = float(d_min_m)
+        self.position_error_m = float(position_error_m)
         self.cfg = config or GuardConfig()
         self.model = model or SeparationModel(load_assumptions())
         self.build_up = BrakeBuildUp(follower, self.model.assumptions)
