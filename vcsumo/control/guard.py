@@ -2,31 +2,48 @@
 
 :class:`SeparationGuard` sits between the follower's controller (and its supervisor) and the
 train, in the SUMO loop and in the offline loop alike (:class:`~vcsumo.control.stack.FollowerStack`).
-``limit(obs, cmd)`` returns the largest force not above ``cmd.force_n`` whose one-step speed
-(eq. 1b on the train model, with the gradient and tunnel factor where the train is) stays at or
-below the **guard speed** — never below the emergency brake force −M·a_eb.  Interventions (the
-command would have exceeded the guard speed) are counted; a limited force beyond the service
-brake envelope is flagged ``emergency`` (the offline plant then applies it with the emergency
-brake, as the SUMO loop always allows the follower).
+``limit(obs, cmd)`` returns the command, or the largest force below it that passes two tests —
+never below the emergency brake force −M·a_eb.  Interventions are counted; a limited force beyond
+the service brake the train is sure of is flagged ``emergency`` (the offline plant then applies
+its emergency brake, as the SUMO loop always allows the follower).
 
 What the guard knows of the predecessor is only what is on board (:func:`predecessor_estimate`):
 the sensed gap and speed when the Observation carries them (the predecessor is the train seen
 ahead), else the state in the latest message the channel delivered (with its age), else nothing —
 then the predecessor may be standing at the follower's front.
 
-The guard speed (:meth:`SeparationGuard.speed_limit`) is the relative-braking rule of the one
-separation model (:class:`vcsumo.signalling.separation.RelativeBraking`, under the stack's named
-assumption set): the predecessor is placed where it is at the least, having braked as hard as it
-can (top of its box, its resistance, up-grades) since the time stamp of what the follower knows of
-it; from there both trains brake on the route's gradients — the follower with its guaranteed
-brake (bottom of its box, descents) after the dead time (reaction + half the brake build-up) and
-1.5 steps, the predecessor with its strongest — and the follower's speed for the next step is the
-largest that keeps margin + the position errors of both trains (+ the stack's d_min beyond that)
-between them at every moment (also when the follower brakes harder than the predecessor can).
-Approaching its own stop (``Observation.next_stop_m``) the follower keeps to its guaranteed
-service-brake curve to the stop point, and everywhere to the line's permitted speed: the limit under
-the whole train and the guaranteed service-brake curve to every lower limit ahead (the same curves
-the supervision gives the trains SUMO drives).
+**Separation** (:class:`NextStepSeparation`): the relative-braking rule of the one separation
+model (:class:`vcsumo.signalling.separation.RelativeBraking`, under the stack's named assumption
+set), tested on the state one step ahead and on the *force* the train will be applying then.  The
+predecessor is placed where it is at the least one step from now, having braked as hard as it can
+(top of its box, its resistance, up-grades) since the time stamp of what the follower knows of it.
+The follower's force one step ahead is the largest its plant can apply after the command (force
+lag and jerk limit from the force it applies now, ``Observation.ego.force_n``:
+:meth:`BrakeBuildUp.next_force`); from that force its guaranteed brake needs the build-up
+:meth:`BrakeBuildUp.actuation_time` (an equivalent dead time, the CBF's: longest from full
+traction — ETR1000 ≈ 1.9 s —, ≈ 1.3 s from coasting, 0 once braking fully), during which it keeps
+that force's traction and the steepest descent on its way.  So the follower runs the set's dead
+time (reaction + half the brake build-up the set assumes) + that build-up + half a step (the
+explicit-Euler overshoot) at the speed it reaches, then brakes at its guaranteed brake (bottom of
+its box, descents) on the route's gradients against the predecessor's strongest; the gap less the
+margin, the position errors of both trains (the assumption set's, + the odometry bound
+``position_error_m`` the guard is told: it works on measured positions and keeps the rule on the
+true ones) and the stack's d_min beyond that must hold the worst closing at every moment (also
+when the follower brakes harder than the predecessor can).  The test is monotone in the force, so
+when the command fails it the guard searches the largest force one step ahead that passes and
+commands what gives it (the lag inverted; the service brake where the jerk limit makes it as good;
+else the emergency brake).  Why the build-up from the applied force: the run-health monitor checks
+the rule with the set's dead time at *every* step on the true speed, also halfway through a brake
+build-up, so a follower at full traction at the rule's boundary cannot stay within it (its speed
+still rises while its brake builds up); with the build-up added, the test's stopping point does
+not move forward along an emergency braking (the equivalent dead time shrinks as the force falls),
+and the monitor's rule — the same with less dead time, at a lower speed — is kept.
+
+**Line** (:meth:`SeparationGuard.line_speed`): approaching its own stop
+(``Observation.next_stop_m``) the follower keeps to its guaranteed service-brake curve to the stop
+point, and everywhere to the line's permitted speed: the limit under the whole train and the
+guaranteed service-brake curve to every lower limit ahead (the same curves the supervision gives
+the trains SUMO drives), on the one-step speed of eq. 1b.
 
 By default the guard trusts only what the channel delivered (:class:`GuardConfig` ``sensor``: an
 on-board sensor of the train ahead — SUMO's exact gap and speed within its look-ahead, no error
@@ -128,6 +145,7 @@ class BrakeBuildUp:
         self.service_low = p.with_(mass_kg=self.m_low, service_brake_decel_mps2=brake_range(stock, assumptions, "service")[0], max_brake_power_w=bp)
         """The train with its guaranteed service-brake force (the bottom of mass, rate and power)."""
         self.full_traction_n = self.m_high * box.max_accel_mps2.high
+        self._routes: dict[int, tuple] = {}
 
     def actuation_time(self, force_n: float | None) -> float:
         """Equivalent dead time from the applied force ``force_n`` (None: full traction) to the
@@ -156,11 +174,16 @@ class BrakeBuildUp:
             return v_mps, 0.0
         if braking is None:
             return v_mps + self.hold_accel(force_n, 0.0) * t_act, t_act
-        x, g = braking.x, braking.g_low
-        reach = v_mps * t_act + 0.5 * self.hold_accel(force_n, max(0.0, -float(np.min(g)))) * t_act * t_act
-        i0 = min(max(int(np.searchsorted(x, s_m, side="right")) - 1, 0), len(g) - 1)
-        i1 = min(max(int(np.searchsorted(x, s_m + reach, side="right")) - 1, i0), len(g) - 1)
-        return v_mps + self.hold_accel(force_n, max(0.0, -float(np.min(g[i0: i1 + 1])))) * t_act, t_act
+        route = self._routes.get(id(braking))
+        if route is None or route[0] is not braking:  # the braking's edges, lowest gradients and steepest descent, once
+            route = self._routes[id(braking)] = (braking, braking.x, braking.g_low, max(0.0, -float(np.min(braking.g_low))))
+        _, x, g, descent_all = route
+        reach = v_mps * t_act + 0.5 * self.hold_accel(force_n, descent_all) * t_act * t_act
+        n = len(g) - 1
+        i0 = min(max(int(np.searchsorted(x, s_m, side="right")) - 1, 0), n)
+        i1 = min(max(int(np.searchsorted(x, s_m + reach, side="right")) - 1, i0), n)
+        low = float(g[i0]) if i1 == i0 else float(g[i0: i1 + 1].min())
+        return v_mps + self.hold_accel(force_n, max(0.0, -low)) * t_act, t_act
 
     def service_force_n(self, v_mps: float) -> float:
         """The service-brake force the train is sure to have at speed v, N (positive)."""
@@ -323,12 +346,15 @@ class SeparationGuard:
             floor = build.next_force(f0, f_eb, dt, True, v)
             if sep.fits(floor):  # the largest force one step ahead that fits, and the command that gives it
                 lo, hi = floor, build.next_force(f0, force, dt, emergency, v)
-                for _ in range(40):
-                    if hi - lo <= 1.0:
-                        break
+                tol = 1e-3 * (hi - lo)  # the search's resolution (it keeps the side that passes)
+                while hi - lo > tol:
                     mid = 0.5 * (lo + hi)
                     lo, hi = (mid, hi) if sep.fits(mid) else (lo, mid)
-                force = max(min(build.command_for(f0, lo, dt), force), f_eb)
+                u = build.command_for(f0, lo, dt)
+                service = -build.service_force_n(v)
+                if u < service and build.next_force(f0, service, dt, False, v) <= lo:
+                    u = service  # the service brake gets there too (the jerk limit binds): no emergency brake
+                force = max(min(u, force), f_eb)
             else:  # outside the rule already: brake as hard as the train can, to a stand (and hold it there)
                 force = max(min(self._force_for(p, v, v_floor, dt, grad, tf), force), f_eb)
         if force >= force_in - 1e-9:
