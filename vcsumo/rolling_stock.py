@@ -212,8 +212,8 @@ class _VTypeVariant(RollingStock):
 
     true_stock: RollingStock = Field(description="The train as SUMO runs it (its vType)")
 
-    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail") -> str:
-        return self.true_stock.vtype_xml(tunnel_factor, vclass)
+    def vtype_xml(self, tunnel_factor: float = 1.0, vclass: str = "rail", min_gap_m: float = 5.0) -> str:
+        return self.true_stock.vtype_xml(tunnel_factor, vclass, min_gap_m)
 
 
 def rolling_stock_dir() -> Path:
