@@ -75,6 +75,10 @@ class ConvoyEmergency:
     def predecessor_of(self, train_id: str) -> str | None:
         return self.vc.predecessor_of(train_id)
 
+    def stop_releases(self) -> set[str]:
+        """The VC driver's convoy followers released at a shared stop (the loop resumes them)."""
+        return self.vc.stop_releases()
+
     def decel_mps2(self, train_id: str, s_m: float, v_mps: float, emergency: bool) -> float:
         """The true train's strongest deceleration at (s, v), m/s² (eq. 1b with its true parameters)."""
         p, prof = self.true[train_id], self.plans[train_id].profile
