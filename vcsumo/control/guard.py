@@ -124,10 +124,12 @@ class BrakeBuildUp:
     a first-order lag τ at least as much as holding F for τ.  From full traction that is the longest
     (ETR1000: 0.5 + (0.94 + 1.08)/1.4 ≈ 1.94 s), from coasting less (≈ 1.27 s).
 
-    :meth:`next_force` is the largest force the plant can apply one step after a command (eq. 1c
-    lag with Euler step min(1, Δt/τ), then eq. 4c jerk limit j·M·Δt; the plant's service envelope
-    never asks less braking than a command above the guaranteed service force, its emergency
-    brake at least M̲ times the bottom of the emergency range); :meth:`command_for` inverts the lag.
+    :meth:`next_force` is the largest force the plant can apply one step after a command: a rising
+    force at most the command (a plant without lag — SUMO's, driven by speed commands — applies it at
+    once); a falling one no lower than the eq. 1c lag (Euler step min(1, Δt/τ)) and the eq. 4c jerk
+    limit j·M̲·Δt allow (the plant's service envelope never asks less braking than a command above
+    the guaranteed service force, its emergency brake at least M̲ times the bottom of the emergency
+    range); :meth:`command_for` inverts the lag.
     """
 
     def __init__(self, stock: RollingStock, assumptions: AssumptionSet):
@@ -195,13 +197,18 @@ class BrakeBuildUp:
     def next_force(self, force_n: float, command_n: float, dt: float, emergency: bool, v_mps: float) -> float:
         """The largest force the plant applies one step after ``command_n`` from ``force_n``, N."""
         target = -self.emergency_low_n if emergency else max(command_n, -self.service_force_n(v_mps))
+        if target >= force_n:  # a rising force: at most the command (a plant without lag applies it at once: SUMO's)
+            return target
         f = force_n + self.lag_alpha(dt) * (target - force_n)
         if math.isfinite(self.jerk_mps3):
-            f = max(f, force_n - self.jerk_mps3 * self.m_low * dt) if f < force_n else min(f, force_n + self.jerk_mps3 * self.m_high * dt)
+            f = max(f, force_n - self.jerk_mps3 * self.m_low * dt)
         return f
 
     def command_for(self, force_n: float, next_force_n: float, dt: float) -> float:
-        """The command whose lagged force one step later is ``next_force_n`` (the lag inverted), N."""
+        """The command whose force one step later is at most ``next_force_n`` (:meth:`next_force`
+        inverted: a falling force through the lag, a rising one the force itself), N."""
+        if next_force_n >= force_n:
+            return next_force_n
         return force_n + (next_force_n - force_n) / self.lag_alpha(dt)
 
 
