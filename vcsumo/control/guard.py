@@ -17,9 +17,9 @@ model (:class:`vcsumo.signalling.separation.RelativeBraking`, under the stack's 
 set), tested on the state one step ahead and on the *force* the train will be applying then.  The
 predecessor is placed where it is at the least one step from now, having braked as hard as it can
 (top of its box, its resistance, up-grades) since the time stamp of what the follower knows of it.
-The follower's force one step ahead is the largest its plant can apply after the command (force
-lag and jerk limit from the force it applies now, ``Observation.ego.force_n``:
-:meth:`BrakeBuildUp.next_force`); from that force its guaranteed brake needs the build-up
+The follower's force one step ahead is the largest its plant can apply after the command (a rising
+force at most the command, a falling one no lower than the force lag and jerk limit allow from the
+force it applies now, ``Observation.ego.force_n``: :meth:`BrakeBuildUp.next_force`); from that force its guaranteed brake needs the build-up
 :meth:`BrakeBuildUp.actuation_time` (an equivalent dead time, the CBF's: longest from full
 traction — ETR1000 ≈ 1.9 s —, ≈ 1.3 s from coasting, 0 once braking fully), during which it keeps
 that force's traction and the steepest descent on its way.  So the follower runs the set's dead
@@ -31,8 +31,8 @@ margin, the position errors of both trains (the assumption set's, + the odometry
 true ones) and the stack's d_min beyond that must hold the worst closing at every moment (also
 when the follower brakes harder than the predecessor can).  The test is monotone in the force, so
 when the command fails it the guard searches the largest force one step ahead that passes and
-commands what gives it (the lag inverted; the service brake where the jerk limit makes it as good;
-else the emergency brake).  Why the build-up from the applied force: the run-health monitor checks
+commands what gives it (a falling force through the lag inverted, a rising one as it is; the
+service brake where the jerk limit makes it as good; else the emergency brake).  Why the build-up from the applied force: the run-health monitor checks
 the rule with the set's dead time at *every* step on the true speed, also halfway through a brake
 build-up, so a follower at full traction at the rule's boundary cannot stay within it (its speed
 still rises while its brake builds up); with the build-up added, the test's stopping point does
