@@ -267,9 +267,9 @@ class SeparationGuard:
     errors); ``model``: the separation model (its assumption set); ``config``: whether a sensor is
     trusted; ``position_error_m``: the bound e_s of the odometry error of each train's measured
     position (Felez eq. 9) — the positions it works on are measured, and the rule (its margin
-    included) is kept on the true ones.  ``interventions`` counts the steps it lowered the command; ``last_speed_mps`` is the
-    nominal one-step speed under its output when it bound (else the speed the command reaches) and
-    ``last_force_in_n`` its incoming force."""
+    included) is kept on the true ones.  ``interventions`` counts the steps it lowered the command;
+    ``last_speed_mps`` is the nominal one-step speed under its output when it bound (else the speed
+    the command reaches) and ``last_force_in_n`` its incoming force."""
 
     def __init__(self, follower: RollingStock, predecessor: RollingStock, d_min_m: float, config: GuardConfig | None = None,
                  model: SeparationModel | None = None, position_error_m: float = 0.0):
