@@ -76,6 +76,7 @@ class ConvoyEmergency:
         return self.vc.predecessor_of(train_id)
 
     def stop_releases(self) -> set[str]:
+        """The VC driver's convoy followers released at a shared stop (the loop resumes them)."""
         return self.vc.stop_releases()
 
     def decel_mps2(self, train_id: str, s_m: float, v_mps: float, emergency: bool) -> float:
