@@ -130,9 +130,11 @@ def test_a_new_controller_is_one_registry_entry(acc_registered, tmp_path):
     assert "acc" in controller_names() and all(f"{s}-acc" in controller_names() for s in SUPERVISORS)
     # usable by name in the offline loop, with the guard and the fault stage of every stack
     leader = EmergencyBrake(SpeedProfile((0.0, 1e4), (V0, V0)), 30.0)
-    df = simulate_convoy(["etr1000"] * 2, "acc", leader, 120.0, DT, None, [80.0 + 2.0 * V0])
+    df = simulate_convoy(["etr1000"] * 2, "acc", leader, 150.0, DT, None, [80.0 + 2.0 * V0])
     f = df[df.train == "T1"]
-    # (the ACC settles at its own d = 80 m, beyond the guard's 70 m margin, with a creep it damps itself)
+    # (the ACC settles at its own d = 80 m, beyond the guard's 70 m margin, with a creep it damps
+    # itself: the guard, which counts the brake build-up, stops it ≈ 3 m further back than the ACC's d
+    # at ≈ 100 s and the ACC creeps on for a few tens of seconds)
     assert set(f["mode"]) >= {"acc"} and f.gap_m.min() > 70.0 and f.speed_mps.iloc[-1] < 0.05
     # a parameter file after the colon is resolved like any other (here: a path)
     (tmp_path / "acc.yaml").write_text("d_m: 150.0\nh_s: 1.0\n")
@@ -151,10 +153,18 @@ def test_registered_controllers_have_their_default_files_and_plans_flag():
         assert e.default_params is None or resolve_params(None, e.default_params).is_file(), name
     assert CONTROLLERS["mpc"].uses_plans and CONTROLLERS["cruise"].uses_plans and not CONTROLLERS["cbc"].uses_plans
     assert not CONTROLLERS["cruise"].standalone and "cruise" not in controller_names() and "cbf-cruise" in controller_names()
-    # cbc tracks the certified spacing: the separation model's relative-braking gap (+ its 10 m buffer)
+    # cbc tracks the certified spacing: the separation model's relative-braking gap (+ its 10 m buffer),
+    # the follower's brake building up from the force that holds 40 m/s (Davis 8,800 + 61.8 v + 8.7 v²):
+    # τ + (F/M̲ + b)/(2j) more dead time, at the speed that force may add meanwhile
     from vcsumo.signalling.assumptions import load_assumptions
-    from vcsumo.signalling.separation import SeparationModel
+    from vcsumo.signalling.separation import SeparationModel, relative_braking_gap
 
     model = SeparationModel(load_assumptions())
     gap40 = build_follower_stack("cbc", StackContext(ego=STOCK, predecessor=STOCK, step_s=DT)).coupled_gap_m(40.0)
-    assert math.isclose(gap40, model.vc_gap(STOCK, STOCK, 40.0, message_age_s=model.assumptions.t2t_delay_bound_s + 1.5 * DT) + 10.0)
+    f_hold = 8800.0 + 61.8 * 40.0 + 8.7 * 40.0**2
+    t_act = 0.5 + (f_hold / 461e3 + 1.08) / (2 * 0.7)
+    v_dead = 40.0 + f_hold / (1.04 * 461e3) * t_act
+    a_f, a_l = model.vc_decels(STOCK, STOCK, 40.0, 40.0)
+    dead = model.dead_time_s + model.assumptions.t2t_delay_bound_s + 1.5 * DT + t_act
+    assert math.isclose(gap40, model.margin_m + relative_braking_gap(v_dead, 40.0, a_f, a_l, dead) + 10.0)
+    assert gap40 > model.vc_gap(STOCK, STOCK, 40.0, message_age_s=model.assumptions.t2t_delay_bound_s + 1.5 * DT) + 10.0 + 40.0 * t_act

@@ -94,3 +94,21 @@ def test_cli_runs_the_sumo_loop_into_the_same_table(tmp_path, capsys):
     runs = pd.read_csv(out / "safety.csv")
     assert sorted(runs["loop"]) == ["offline", "sumo"] and bool(np.isfinite(runs["min_margin_m"]).all())
     assert main(["study", "safety", "--loop", "sumo", "--kinds", "merge", "--out", str(tmp_path / "bad")]) == 2
+
+
+def test_a_flying_start_never_departs_above_its_edge_limit(line_factory, network_factory):
+    """A follower placed in a lower limit than its leader (scenario s00079 of a 100-scenario SUMO
+    campaign: milano_bologna down) departs at that limit: SUMO refuses a faster departure."""
+    from vcsumo.rolling_stock import load_rolling_stock
+    from vcsumo.route_profile import RouteProfile
+    from vcsumo.studies.safety_sumo import flying_start
+
+    net = network_factory("regional_graded")
+    track = net.topology.track_for("main", "up")
+    full = RouteProfile.from_edges(net.topology, track.edges)
+    s_low = 500.0  # inside the 80 km/h limit over the terminus
+    assert full.speed_limit_at(s_low) < 30.0
+    t = flying_start(net.topology, list(track.edges), full, load_rolling_stock("regional_emu160"), "x", s_low, 44.4, "up")
+    assert t.depart_speed_mps == full.speed_limit_at(s_low)
+    t = flying_start(net.topology, list(track.edges), full, load_rolling_stock("regional_emu160"), "y", 10000.0, 30.0, "up")
+    assert t.depart_speed_mps == 30.0

@@ -5,6 +5,7 @@ counters firing when SUMO drives alone."""
 
 from __future__ import annotations
 
+import math
 import pytest
 
 from vcsumo.line import load_line
@@ -148,3 +149,29 @@ def test_a_train_standing_in_its_platform_behind_another_has_served_its_stop(lin
     sup.permitted(t.id, 1.5, inside, 0.0)  # standing in it
     assert sup.curves[t.id].next_stop == 1
     assert sup.permitted(t.id, 2.0, inside + 0.5, 1.0).reason != "stop" or t.stops[1].s_m - inside < 500.0
+
+
+def test_an_overrun_is_passing_the_end_of_authority_not_standing_where_placed(line_factory, network_factory):
+    """A train placed at a platform whose exit signal stands at its front (a departure 30 s behind
+    the train ahead) is 10 m past its authority (its position error) without having moved: not an
+    overrun (an unseen test line counted two). Moving past it is one, counted once per episode,
+    standing in it or not; the counter fires at every speed."""
+    from vcsumo.signalling.assumptions import load_assumptions
+    from vcsumo.signalling.separation import SeparationModel
+    from vcsumo.sim.health import HealthMonitor
+    from vcsumo.timetable import load_timetable, plan_trains
+
+    line = line_factory("regional_graded")
+    tt, p = load_timetable("all_stations", line)
+    t = plan_trains(tt, p, line, network_factory("regional_graded").topology)[0]
+    h = HealthMonitor(SeparationModel(load_assumptions()), [t])
+    for _ in range(20):  # standing 10 m past it from the start
+        h.step(t.id, 0.5, 260.0, 0.0, 0.0, math.inf, -10.0)
+    assert h.trains[t.id].overruns == 0
+    h.step(t.id, 0.5, 260.0, 0.3, 0.6, math.inf, -10.15)  # it moves on while still past: an overrun
+    h.step(t.id, 0.5, 260.2, 0.0, -0.6, math.inf, -10.2)  # stands in it: the same episode
+    h.step(t.id, 0.5, 260.2, 0.2, 0.4, math.inf, -10.3)
+    assert h.trains[t.id].overruns == 1 and h.trains[t.id].max_overrun_m == 10.3
+    h.step(t.id, 0.5, 300.0, 5.0, 0.0, math.inf, 400.0)  # a new authority ahead
+    h.step(t.id, 0.5, 700.0, 2.0, -0.5, math.inf, -0.6)  # passes it slowly: a second overrun
+    assert h.trains[t.id].overruns == 2

@@ -51,7 +51,7 @@ def _ints(value: str, option: str) -> list[int]:
 @click.option("--direction", type=click.Choice(["up", "down"]), default="up", show_default=True, help="Direction")
 @click.option("--simulate-check", type=int, default=0, show_default=True,
               help="Also simulate VC n=2 (the capacity study's loop) at this many swept points and report sim vs analytic")
-@click.option("--controller", default="cbc", show_default=True, help="VC controller of the simulated check")
+@click.option("--controller", default="cbc", show_default=True, help="VC controller: the spacing its stack certifies sets the VC figures, and it runs the simulated check")
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step for FBS/MB, s (its 1.5 steps add to their dead time)")
 @click.option("--vc-step-length", type=float, default=0.2, show_default=True, help="SUMO and controller step for VC, s")

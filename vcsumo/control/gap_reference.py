@@ -349,25 +349,49 @@ class SeparationGap:
     """The certified spacing as a gap reference: the front-to-rear gap the separation model's
     relative-braking rule needs (:class:`vcsumo.signalling.separation.RelativeBraking`, on the
     follower's route when it is known) for both trains at the follower's speed, with the dead time,
-    the assumption set's message-age bound and ``extra_delay_s`` (e.g. 1.5 loop steps), plus
-    ``buffer_m`` — so a controller tracking it stays just outside what the guard enforces."""
+    the assumption set's message-age bound and ``extra_delay_s`` (e.g. 1.5 loop steps), plus the
+    follower's brake build-up from the force that holds its speed there (the separation guard's
+    :class:`~vcsumo.control.guard.BrakeBuildUp`: its equivalent dead time, and the speed it may gain
+    meanwhile), plus ``buffer_m`` — so a controller tracking it stays just outside what the guard
+    enforces."""
 
     def __init__(self, model, follower, leader, profile=None, extra_delay_s: float = 0.0, buffer_m: float = 10.0):
+        from vcsumo.control.guard import BrakeBuildUp
         from vcsumo.signalling.separation import RelativeBraking
 
         self.model = model
         self.follower, self.leader = follower, leader
+        self.params = follower.params()
+        self.profile = profile
         self.rule = RelativeBraking(model, follower, leader, profile) if profile is not None else None
         self.delay_s = model.dead_time_s + model.assumptions.t2t_delay_bound_s + extra_delay_s
+        self.build_up = BrakeBuildUp(follower, model.assumptions)
         self.buffer_m = buffer_m
 
+    def build_up_at(self, speed_mps: float, position_m: float | None = None) -> tuple[float, float]:
+        """(speed held, equivalent dead time) of the follower's brake build-up from the force that
+        holds ``speed_mps`` (its running resistance and the gradient where it is; level track
+        without a position), m/s and s (:meth:`~vcsumo.control.guard.BrakeBuildUp.held`)."""
+        from vcsumo.dynamics import gradient_force, running_resistance
+
+        p = self.params
+        on_route = self.rule is not None and position_m is not None
+        grade = self.profile.mean_gradient(position_m, p.length_m) if on_route else 0.0
+        tf = self.profile.tunnel_factor_at(position_m) if on_route else 1.0
+        force = float(running_resistance(p, speed_mps, tf) + gradient_force(p, grade))
+        return self.build_up.held(self.rule.follower if on_route else None, position_m or 0.0, speed_mps, force)
+
     def gap_m(self, speed_mps: float, predecessor_speed_mps: float | None = None, position_m: float | None = None) -> float:
+        from vcsumo.signalling.separation import relative_braking_gap
+
         v = max(speed_mps, 0.0)
-        level = self.model.vc_gap(self.follower, self.leader, v, message_age_s=self.delay_s - self.model.dead_time_s)
+        v_dead, t_act = self.build_up_at(v, position_m)
+        a_f, a_l = self.model.vc_decels(self.follower, self.leader, v, v)
+        level = self.model.margin_m + relative_braking_gap(v_dead, v, a_f, a_l, self.delay_s + t_act)
         if self.rule is None or position_m is None:
             return level + self.buffer_m
         s_l = position_m + level + self.leader.length_m
-        return self.rule.required_gap(position_m, v, s_l, v, self.delay_s) + self.buffer_m
+        return self.rule.required_gap(position_m, v_dead, s_l, v, self.delay_s + t_act) + self.buffer_m
 
     def evaluate(self, time_s: float, position_m: float, speed_mps: float, predecessor_speed_mps: float) -> GapSample:
         return GapSample(self.gap_m(speed_mps, predecessor_speed_mps, position_m))

@@ -74,7 +74,7 @@ class StackContext:
     control_period_s: float | None = None
     """Period of the nominal controller (the ATO cycle; None: every step)."""
     position_error_m: float = 0.0
-    """Bound of the odometry error the supervisor must allow for (Felez eq. 9), m."""
+    """Bound of the odometry error the supervisor and the guard must allow for (Felez eq. 9), m."""
     record: bool = True
     """Let the supervisor keep its per-step history."""
     recovery_s: float = 1.0
@@ -235,7 +235,8 @@ def build_follower_stack(spec: str, ctx: StackContext) -> FollowerStack:
     guard = None
     if ctx.guard is not None and ctx.guard is not False:
         model = SeparationModel(ctx.assumptions or load_assumptions())
-        guard = SeparationGuard(ctx.ego, ctx.predecessor, d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else GuardConfig(), model)
+        guard = SeparationGuard(ctx.ego, ctx.predecessor, d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else GuardConfig(), model,
+                                ctx.position_error_m)
     stage = FaultStage(controller, ctx.ego.params(), supervisor, ctx.ego_id, ctx.recovery_s, guard=guard)
     return FollowerStack(s.name, built.controller, supervisor, guard, stage, d_min, built.coupled_gap, entry.uses_plans, files)
 

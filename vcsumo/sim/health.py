@@ -30,6 +30,8 @@ DECEL_TOLERANCE_MPS2 = 0.02
 """Braking counted beyond the service rate above the strongest service deceleration plus this, m/s²."""
 AUTHORITY_TOLERANCE_M = 0.5
 """A front more than this past its end of movement authority is an overrun, m."""
+STANDING_MPS = 0.05
+"""Below this a train stands: it cannot start an overrun (it only continues one), m/s."""
 
 
 @dataclass
@@ -218,13 +220,16 @@ class HealthMonitor:
         if beyond and not h._beyond:
             h.beyond_service_events += 1
         h._beyond = beyond
-        # end of movement authority
-        overrun = driven_by_sumo and authority_m < -AUTHORITY_TOLERANCE_M
-        if overrun:
+        # end of movement authority: passing it (moving beyond it) is an overrun; a train standing where
+        # it was placed (a departure at a platform whose exit signal stands at its front) passed nothing
+        past = driven_by_sumo and authority_m < -AUTHORITY_TOLERANCE_M
+        if past and (h._overrun or v_mps > STANDING_MPS):
             h.max_overrun_m = max(h.max_overrun_m, -authority_m)
             if not h._overrun:
                 h.overruns += 1
-        h._overrun = overrun
+            h._overrun = True
+        elif not past:
+            h._overrun = False
         return started
 
     def collision(self, time_s: float, collider: str, victim: str, collider_speed_mps: float, victim_speed_mps: float) -> None:

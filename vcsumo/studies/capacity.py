@@ -61,7 +61,7 @@ from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.results import ResultsFolder, file_digest, write_meta
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
-from vcsumo.studies.capacity_route import Case, RouteSetup, analytic_headway, check_position_m, initial_convoy_gap, leader_run, route_setup, unit_trains
+from vcsumo.studies.capacity_route import Case, RouteSetup, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gap, leader_run, route_setup, unit_trains
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.studies.time_distance import TIME_DISTANCE_COLUMNS, TIME_DISTANCE_FILE, time_distance_table
 from vcsumo.timetable import PlannedTrain
@@ -133,7 +133,8 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     run = leader_run(setup, stock, case, dt, model)
     s_check = check_position_m(setup)
     init_gap = initial_convoy_gap(model, stock, setup.v0) if case.convoy_size > 1 else 0.0
-    theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check)
+    spacing_of = convoy_spacing(case.controller, stock, dt, assumptions) if case.regime == "vc" and case.convoy_size > 1 else None
+    theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check, spacing_of)
     guess = theory.headway_s
     probes = [0]
     unhealthy = [0]

@@ -5,6 +5,7 @@ headway on it (:mod:`vcsumo.studies.capacity` runs the cases)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import pandas as pd
 
@@ -128,11 +129,23 @@ def check_position_m(setup: RouteSetup) -> float:
     return setup.full.length_m - 100.0
 
 
+def convoy_spacing(controller: str, stock: RollingStock, step_s: float, assumptions) -> Callable[[float], float]:
+    """The front-to-rear gap a follower of ``controller``'s stack keeps behind a train of its own type
+    at a common speed v on level track, m (as :meth:`vcsumo.sim.vc_driver.VCDriver.coupled_spacing_m`:
+    the stack's coupled gap, at least its minimum safe gap) — a formula of the separation model, the
+    guard's brake build-up and the controller's parameters, not a measurement."""
+    from vcsumo.control.registry import StackContext, build_follower_stack
+
+    stack = build_follower_stack(controller, StackContext(ego=stock, predecessor=stock, step_s=step_s, assumptions=assumptions))
+    return lambda v: max(stack.coupled_gap_m(v), stack.d_min_m)
+
+
 def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,
-                     s_check: float):
+                     s_check: float, coupled_gap: Callable[[float], float] | None = None):
     """The regime's minimum headway between two units from the separation model alone
-    (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway`)."""
-    inp = HeadwayInputs(model, stock, setup.full, run, setup.full.signal_positions(net.topology), step_s, s_check)
+    (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway`; VC convoys at ``coupled_gap``,
+    e.g. :func:`convoy_spacing`)."""
+    inp = HeadwayInputs(model, stock, setup.full, run, setup.full.signal_positions(net.topology), step_s, s_check, coupled_gap=coupled_gap)
     return REGIMES[case.regime].analytic_headway(inp, case.convoy_size)
 
 

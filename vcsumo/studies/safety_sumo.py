@@ -76,6 +76,7 @@ class ConvoyEmergency:
         return self.vc.predecessor_of(train_id)
 
     def stop_releases(self) -> set[str]:
+        """The VC driver's convoy followers released at a shared stop (the loop resumes them)."""
         return self.vc.stop_releases()
 
     def decel_mps2(self, train_id: str, s_m: float, v_mps: float, emergency: bool) -> float:
@@ -100,7 +101,9 @@ class ConvoyEmergency:
 
 
 def flying_start(topo, full_edges: list[str], full: RouteProfile, train, tid: str, s_m: float, v_mps: float, direction: str) -> PlannedTrain:
-    """A planned train on the main track with its front at ``s_m`` of the full route, at ``v_mps``, departing at t = 0."""
+    """A planned train on the main track with its front at ``s_m`` of the full route, at ``v_mps`` (at
+    most the limit of the edge it starts on: SUMO refuses a faster departure), departing at t = 0."""
+    v_mps = min(v_mps, full.speed_limit_at(s_m))
     i0 = full.index_at(s_m)
     edges = full_edges[i0:]
     pos = s_m - float(full.starts_m[i0])

@@ -54,7 +54,7 @@ from vcsumo.rolling_stock import RollingStock
 from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.studies.capacity_route import Case, analytic_headway, check_position_m, leader_run, route_setup
+from vcsumo.studies.capacity_route import Case, analytic_headway, check_position_m, convoy_spacing, leader_run, route_setup
 
 SWEPT = ("t2t_delay_bound_s", "braking_uncertainty", "position_error_m")
 """Assumptions the study sweeps (fields of :class:`~vcsumo.signalling.assumptions.AssumptionSet`)."""
@@ -126,7 +126,7 @@ class TradeoffConfig(StrictModel):
     pattern: Literal["non-stop", "all-stops"] = Field(default="non-stop", description="Stopping pattern")
     direction: Literal["up", "down"] = Field(default="up", description="Direction")
     simulate_check: int = Field(default=0, ge=0, le=50, description="Swept points also simulated (VC n=2, capacity study's loop), 0–50")
-    controller: str = Field(default="cbc", description="VC controller of the simulated check")
+    controller: str = Field(default="cbc", description="VC controller: the spacing its stack certifies sets the VC figures, and it runs the simulated check")
     block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Override the line's block length, m")
     step_length_s: Step = 0.5
     vc_step_length_s: Step = 0.2
@@ -164,6 +164,9 @@ class TradeoffLine:
     pattern: str
     step_s: float = 0.5
     vc_step_s: float = 0.2
+    vc_controller: str | None = None
+    """The controller whose certified spacing VC convoys keep (its stack's coupled gap, as the
+    capacity study's analytic headway); None: the separation model's coupled gap ``vc_gap(v)``."""
 
 
 def changed(base: AssumptionSet, **update) -> AssumptionSet:
@@ -188,7 +191,8 @@ def capacities(tl: TradeoffLine, aset: AssumptionSet, units: list[tuple[str, int
             case = Case(tl.direction, regime, None, n, tl.pattern)
             if dt not in runs:
                 runs[dt] = leader_run(setup, tl.stock, case, dt, model)
-            th = analytic_headway(tl.net, setup, runs[dt], tl.stock, case, model, dt, s_check)
+            spacing = convoy_spacing(tl.vc_controller, tl.stock, dt, aset) if regime == "vc" and n > 1 and tl.vc_controller else None
+            th = analytic_headway(tl.net, setup, runs[dt], tl.stock, case, model, dt, s_check, spacing)
             rows.append({"regime": regime, "convoy_size": n, "headway_s": round(th.headway_s, 3),
                          "capacity_trains_per_h": round(3600.0 * n / th.headway_s, 3), "critical_km": round(setup.full.km_at(th.critical_m)[1], 3),
                          "coupled_gap_m": round(th.coupled_gap_m, 1) if th.coupled_gap_m is not None else math.nan,
@@ -371,7 +375,7 @@ def run_tradeoff_study(cfg: TradeoffConfig, out: Path, progress: Callable[[int, 
         parse_controller(cfg.controller)
     line, stock, base = load_inputs(cfg)
     net = build_network(line, cfg.block_length_m)
-    tl = TradeoffLine(line, net, stock, cfg.direction, cfg.pattern, cfg.step_length_s, cfg.vc_step_length_s)
+    tl = TradeoffLine(line, net, stock, cfg.direction, cfg.pattern, cfg.step_length_s, cfg.vc_step_length_s, vc_controller=cfg.controller)
     if cfg.pattern == "all-stops" and not route_setup(line, net, stock, cfg.direction, cfg.step_length_s, SeparationModel(base)).stops_full:
         raise InputError(None, "--pattern", f"all-stops: {line.name} has no intermediate station after the release point in direction {cfg.direction}")
     params = {**cfg.model_dump(mode="json"), "train": stock.name, "assumptions": base.record(), "rule_inputs": {k: sorted(v) for k, v in RULE_INPUTS.items()}}

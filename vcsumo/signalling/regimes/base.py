@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -58,6 +59,11 @@ class HeadwayInputs:
     """The headway is the largest blocking time met between the release point and here."""
     route_end_m: float | None = None
     """Where the trains leave the route (None: the end of ``profile``)."""
+    coupled_gap: Callable[[float], float] | None = None
+    """VC: the front-to-rear gap a convoy's followers keep at a common speed v, m — the spacing
+    their stack certifies (e.g. :meth:`vcsumo.control.stack.FollowerStack.coupled_gap_m`: the
+    model's relative braking gap with the guard's brake build-up and the controller's buffer);
+    None: the separation model's own coupled gap ``vc_gap(v)``."""
 
     @property
     def end_m(self) -> float:

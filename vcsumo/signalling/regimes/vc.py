@@ -11,8 +11,9 @@ from vcsumo.signalling.regimes.base import AnalyticHeadway, HeadwayInputs, Regim
 def convoy_rear_lag(inp: HeadwayInputs, convoy_size: int):
     """τ_c(z): time between the convoy's leader and its last train passing position z, s.
 
-    From the separation model alone: each follower runs the coupled gap g(v) = vc_gap(v) (relative
-    braking with the assumption set's message-age bound) behind the rear of the train ahead, so the
+    From the separation model alone: each follower runs the coupled gap g(v) behind the rear of the
+    train ahead (``inp.coupled_gap``: the spacing its stack certifies; else ``vc_gap(v)``, relative
+    braking with the assumption set's message-age bound), so the
     last train's front is Δ(v) = (n − 1)·(L + g(v)) behind the leader's front at the leader's speed
     v; it passes z when the leader's front is at z + Δ(v) (first passage; standing still the gap
     is the margin and the position errors).
@@ -23,7 +24,8 @@ def convoy_rear_lag(inp: HeadwayInputs, convoy_size: int):
     v = run["speed_mps"].to_numpy()
     L = inp.stock.length_m
     grid = np.arange(0.0, np.ceil(float(v.max())) + 1.0)  # the gap on a 1 m/s grid, interpolated (not at the rounded speed: below it)
-    gaps = np.array([inp.model.vc_gap(inp.stock, inp.stock, float(x)) for x in grid])
+    gap_at = inp.coupled_gap or (lambda v: inp.model.vc_gap(inp.stock, inp.stock, v))
+    gaps = np.array([gap_at(float(x)) for x in grid])
     delta = (convoy_size - 1) * (L + np.interp(v, grid, gaps))
     rear_front = np.maximum.accumulate(s - delta)  # where the last train's front is, as the leader runs
     keep = np.concatenate([[True], np.diff(rear_front) > 1e-6])
@@ -62,5 +64,5 @@ class VirtualCoupling(Regime):
             sel = prof.iloc[:1]
         i = sel.headway_s.idxmax()
         v0 = float(inp.run["speed_mps"].iloc[0])
-        gap = inp.model.vc_gap(inp.stock, inp.stock, v0) if convoy_size > 1 else None
+        gap = (inp.coupled_gap(v0) if inp.coupled_gap is not None else inp.model.vc_gap(inp.stock, inp.stock, v0)) if convoy_size > 1 else None
         return AnalyticHeadway(float(sel.loc[i, "headway_s"]) + a.position_report_period_s + a.fixed_time_s, float(sel.loc[i, "s_m"]), coupled_gap_m=gap)
