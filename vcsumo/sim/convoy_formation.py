@@ -30,6 +30,11 @@ MOVING_MPS = 5.0
 AT_LIMIT_MPS = 0.5
 """A follower within this of its permitted line speed runs at the limit, m/s."""
 
+def within_spacing(gap_m: float, spacing_m: float) -> bool:
+    """Whether a follower ``gap_m`` behind its predecessor is formed at a ``spacing_m`` spacing."""
+    return gap_m <= (1.0 + FORMED_REL) * spacing_m + FORMED_ABS_M
+
+
 REASONS = ("at the line's permitted speed", "at full traction", "held by the separation guard", "the controller did not close it")
 
 
@@ -53,7 +58,7 @@ class Formation:
         if speed_mps < MOVING_MPS or not math.isfinite(gap_m):
             return
         self.running_s += dt_s
-        if gap_m <= (1.0 + FORMED_REL) * spacing_m + FORMED_ABS_M:
+        if within_spacing(gap_m, spacing_m):
             self.formed_s += dt_s
             if math.isnan(self.formed_at_s):
                 self.formed_at_s = time_s

@@ -60,6 +60,7 @@ from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.results import ResultsFolder, file_digest, write_meta
+from vcsumo.sim.convoy_formation import within_spacing
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.studies.capacity_route import Case, RouteSetup, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gap, leader_run, route_setup, unit_trains
 from vcsumo.studies.min_headway import Probe, search_min_headway
@@ -95,18 +96,13 @@ centre decides the case with two runs.  The bracket widens (doubling) until it h
 centre and width only save simulations (Bologna–Firenze: about 4 runs per case instead of 7)."""
 
 
-FORMED_REL = 0.10
-FORMED_ABS_M = 10.0
-"""A convoy is formed when its followers' gap at the release speed is within 10 % + 10 m of the
-spacing their stacks keep there (``coupled_spacing_m``: the certified relative-braking gap with the
-loop's delays and the controller's buffer)."""
-
-
 def convoy_formed(gap_m: float, spacing_m: float | None) -> bool | float:
-    """Whether a simulated intra-convoy gap is the followers' coupled spacing (NaN when either is unknown)."""
+    """Whether a simulated intra-convoy gap at the release speed is the spacing the followers' stacks
+    keep there (``coupled_spacing_m``), by the rule of :func:`vcsumo.sim.convoy_formation.within_spacing`
+    (10 % + 10 m); NaN when either is unknown."""
     if spacing_m is None or math.isnan(gap_m) or math.isnan(spacing_m):
         return math.nan
-    return bool(gap_m <= (1.0 + FORMED_REL) * spacing_m + FORMED_ABS_M)
+    return bool(within_spacing(gap_m, spacing_m))
 
 
 @dataclass
