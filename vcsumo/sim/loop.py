@@ -124,7 +124,6 @@ class _Track:
     sync_odo: float = math.nan
     tf: float = 1.0
     min_gap: float = math.inf
-    in_emergency: bool = False
     emergencies: int = 0
     released_s: float = math.nan
     """When the driver last handed the train back to SUMO (nan: never)."""
@@ -224,6 +223,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     stop_releases = getattr(driver, "stop_releases", lambda: ())  # a driver that never ends a stop need not say so
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
+    emergency_before: set[str] = set()
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}
     steps = train_steps = 0
@@ -371,12 +371,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             cpu["supervision"] += c - c_mark
             c_mark = c
             # ---------------------------------------------------------------- health: SUMO's events
-            emergency_now = set(sim.emergency_stops())
-            for vid in active:
-                tr = state[vid]
-                if vid in emergency_now and not tr.in_emergency:
-                    tr.emergencies += 1
-                tr.in_emergency = vid in emergency_now
+            emergency_now = {vid for vid in sim.emergency_stops() if vid in obs}  # (running trains)
+            for vid in emergency_now - emergency_before:  # one emergency stop per episode
+                state[vid].emergencies += 1
+            emergency_before = emergency_now
             touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
             for collider, victim in touching - touching_before:  # one collision per episode
                 collisions.append((t, collider, victim))
