@@ -164,7 +164,11 @@ class _MPCBase:
         if shift <= 0:
             return self._last.z.copy()
         z = self._last.z[shift:]
-        return np.append(z, np.zeros(self.settings.horizon_steps - len(z))) if len(z) else None
+        if not len(z):
+            return None
+        w = np.zeros(self.settings.horizon_steps)
+        w[: len(z)] = z
+        return w
 
     def _v_scale(self, obs: Observation) -> float:
         if self.settings.v_max_mps is not None:

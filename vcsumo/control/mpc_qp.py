@@ -156,7 +156,7 @@ class CondensedQP:
         self._post_buf, self._post_eval = _bind(post, model_in + [self.dx, self.vlim, self.srear, self.par],
                                                 [self.z_new, self.pos, self.spd, self.F, self.u, self.viol])
         self._eyeN = np.eye(N)
-        self._diag = self._eyeN
+        self._diag, self._w_j = self._eyeN, None
         self._k_dt = self.dt * np.arange(N + 1)
         self._reset_qp()
 
@@ -305,7 +305,9 @@ class CondensedQP:
                     inv2af: float = 0.0) -> None:
         """Cost weights and follower data of the next QPs (``par``)."""
         self.par[:] = (w_v, w_j, v_scale, c_l, w_d, d_des, d_min, inv2af)
-        self._diag = (2.0 * w_j + 1e-8) * self._eyeN
+        if w_j != self._w_j:
+            self._diag = (2.0 * w_j + 1e-8) * self._eyeN
+            self._w_j = w_j
 
     # ---------------------------------------------------------------------------------------
     def simulate(self, x0, z, lookup: RouteLookup | None) -> tuple[np.ndarray, np.ndarray]:
