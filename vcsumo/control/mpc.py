@@ -38,10 +38,13 @@ Solution method
 Single shooting, condensed: the decision variables are the normalised force increments
 z_k = (F_{k+1} − F_k)/(j_max·M·Δt), so the jerk limits are simple bounds, and
 u_k = F_k + (F_{k+1} − F_k)/α (α = Δt/τ).  One SQP iteration evaluates a compiled CasADi SX
-function for the trajectory and its exact Jacobians (forward sensitivities, lower triangular),
-assembles the Gauss–Newton QP in numpy (N + 3 variables, 4N + 2 rows for a follower) and solves
-it with qpOASES (``casadi.conic``, dense, hot-started from the previous step); CasADi reads and
-writes preallocated numpy buffers (``Function.buffer``), so no conversion happens per call.
+function that gives the Gauss–Newton QP (N + 3 variables, 4N + 2 rows for a follower) from the
+trajectory and its exact Jacobians (forward sensitivities, lower triangular), the Hessian as one
+numpy product, solves the QP with qpOASES (``casadi.conic``, dense, hot-started from the previous
+step) and evaluates a second SX function for the new plan and its constraint violations; CasADi
+reads and writes preallocated numpy buffers (``Function.buffer``), so no conversion happens per
+call.  (The numpy assembly the compiled one replaced is kept in ``tests/test_mpc_compiled.py`` as
+the reference it is tested against.)
 In closed loop the controller runs real-time iterations: one SQP iteration from the warm start
 (previous solution shifted by one step, last increment zero: eq. 14b-c), more (up to
 ``sqp_max_iterations``) only while the re-simulated plan violates a constraint beyond the

@@ -141,15 +141,19 @@ class CondensedQP:
             q["lba"][3 * N + 1 : 4 * N + 1] = -np.inf
             q["uba"][4 * N + 1] = np.inf
         self.Ju = self.z_scale * (np.tril(np.ones((N, N)), -1) + np.eye(N) / self.alpha)  # du/dz (4a rows)
-        # qpdata writes the decision columns of A (the first m·N entries, column-major), g, bounds
+        # qpdata writes the parts of J_w and of A's decision columns that can be nonzero (column
+        # segments, column-major: see _segments), g[:N], the bounds and the cost
         nj = 2 * N if follower else N
         self._Jw = np.zeros(nj * N)
         self._JwT = self._Jw.reshape((N, nj))  # J_wᵀ, C order (J_w is column-major)
+        self._A[:N, :N] = self.Ju
         self._Hz = np.zeros((N, N))
         self._cost = np.zeros(1)
+        seg_w, seg_a = self._segments()
         self._qpd_buf, self._qpd_eval = _bind(
             qpdata, model_in + [self.vlim, self.term, self.vref, self.srear, self.par],
-            [self._Jw, q["g"][:N], q["a"][: m * N], q["lba"], q["uba"], q["lbx"][:N], q["ubx"][:N], self._cost])
+            [self._Jw[j * nj + r0 : j * nj + r1] for j, r0, r1 in seg_w] + [q["g"][:N]] + [q["a"][j * m + r0 : j * m + r1] for j, r0, r1 in seg_a]
+            + [q["lba"], q["uba"], q["lbx"][:N], q["ubx"][:N], self._cost])
         self.dx = self._qp_out[0]  # QP solution: increments' step, then slacks
         self.z_new, self.pos, self.spd = np.zeros(N), np.zeros(N + 1), np.zeros(N + 1)
         self.F, self.u, self.viol = np.zeros(N + 1), np.zeros(N), np.zeros(len(VIOLATIONS) + 1)
@@ -177,6 +181,18 @@ class CondensedQP:
                 self._qp_eval()
             except Exception:
                 pass
+
+    def _segments(self) -> tuple[list, list]:
+        """(column, first row, end row) of the parts of J_w and of the QP's constraint matrix A
+        (decision columns) that can be nonzero; the rest is constant (the force rows 4a, du/dz) or
+        zero: V_k depends on z_0 … z_k, S_k and the commands' power on z_0 … z_{k−1}, z_k.
+        ``_build`` checks that every entry outside them is a constant zero."""
+        N, fol = self.N, self.follower
+        seg_w = [(j, j, N) for j in range(N)] + ([(j, N + j + 1, 2 * N) for j in range(N - 1)] if fol else [])
+        seg_a = [(j, N + j, 2 * N) for j in range(N)] + [(j, 2 * N + j, 3 * N + 1) for j in range(N)]  # power; v_lim and terminal rows
+        if fol:
+            seg_a += [(j, 3 * N + 2 + j, 4 * N + 2) for j in range(N)]  # d_min and 12m rows
+        return seg_w, seg_a
 
     # ---------------------------------------------------------------------------------------
     def _build(self):
@@ -251,9 +267,15 @@ class CondensedQP:
             rows += [Js, -Js[-1, :] - (2.0 * V[-1] * inv2af) * Jv[-1, :]]
             lba += [-inf * ca.DM.ones(N), d_min - h]
             uba += [srear - d_min - S, inf]
+        Jw, A = ca.vertcat(*Jw), ca.vertcat(*rows)
+        seg_w, seg_a = self._segments()
+        for M_, segs, r_first in ((Jw, seg_w, 0), (A, seg_a, N)):  # outside the segments: zero (A: below the constant rows 4a)
+            inside = {(r, j) for j, r0, r1 in segs for r in range(r0, r1)}
+            if any(not M_[r, j].is_zero() for r in range(r_first, M_.size1()) for j in range(N) if (r, j) not in inside):
+                raise AssertionError("a QP matrix entry outside the compiled segments is not zero")
         qpdata = ca.Function("qpdata", model_in + [vlim, term, vref, srear, par],
-                             [ca.densify(ca.vertcat(*Jw)), ca.densify(gz), ca.densify(ca.vertcat(*rows)), ca.densify(ca.vertcat(*lba)),
-                              ca.densify(ca.vertcat(*uba)), -zmax - z, zmax - z, cost])
+                             [ca.densify(Jw[r0:r1, j]) for j, r0, r1 in seg_w] + [ca.densify(gz)] + [ca.densify(A[r0:r1, j]) for j, r0, r1 in seg_a]
+                             + [ca.densify(ca.vertcat(*lba)), ca.densify(ca.vertcat(*uba)), -zmax - z, zmax - z, cost], {"cse": True})
 
         # after the QP: z + step within the jerk bounds, the plan, and its violations (the reference is _violations)
         dx = ca.SX.sym("dx", N + self.ns)
@@ -274,7 +296,7 @@ class CondensedQP:
             viol += [0.0, 0.0]
         viol.append(ca.sum1(dx))  # finite iff the QP step is
         post = ca.Function("post", model_in + [dx, vlim, srear, par],
-                           [zn, ca.vertcat(x0[0], Sn), ca.vertcat(x0[1], Vn), ca.vertcat(x0[2], Fn_), un, ca.densify(ca.vertcat(*viol))])
+                           [zn, ca.vertcat(x0[0], Sn), ca.vertcat(x0[1], Vn), ca.vertcat(x0[2], Fn_), un, ca.densify(ca.vertcat(*viol))], {"cse": True})
         opts = {"printLevel": "none", "sparse": False, "error_on_fail": False, "hessian_type": "posdef", "enableRegularisation": True}
         with _quiet_stdout():
             qp = ca.conic("qp", self.cfg.qp_solver, {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(self.m, self.n)}, opts)
