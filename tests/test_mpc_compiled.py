@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from vcsumo.control.base import Message, Observation, TrainStateMsg
-from vcsumo.control.mpc import FollowerMPC, LeaderMPC, load_mpc_settings
+from vcsumo.control.mpc import FollowerMPC, LeaderMPC, MPCSettings, load_mpc_settings
 from vcsumo.control.mpc_qp import CondensedQP
-from vcsumo.control.mpc_solver import CondensedNMPC, MPCSolution
+from vcsumo.control.mpc_solver import MPCSolution
 from vcsumo.control.predictors import LeaderPrediction, lag_alpha
 from vcsumo.control.route_lookup import RouteLookup, route_profile_from_arrays, straight_route_profile
 from vcsumo.dynamics import TrainParams, brake_force_limit
@@ -99,11 +99,6 @@ class ReferenceNMPC:
         self._reset_qp()
 
     def _reset_qp(self) -> None:
-        """A new qpOASES memory: the next QP is a cold start instead of a hot start.
-
-        qpOASES prints a banner when a memory is created and first used; both happen here, with a
-        dummy problem, quietly.  The parts of the QP data written here are rewritten by every
-        SQP iteration."""
         N, q = self.N, self._qp_in
         with _quiet_stdout():
             self._qp_buf, self._qp_eval = _bind(self._qp_fn, [q[k] for k in self._qp_fn.name_in()], self._qp_out)
@@ -117,9 +112,6 @@ class ReferenceNMPC:
 
 
     def sqp_iteration(self, x0, z, grad, tf, vlim, term, vref, w, srear, fw) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, bool]:
-        """One SQP iteration (Gauss-Newton, condensed): linearise at z, solve the QP, re-simulate.
-
-        Returns (z_new, S_new, V_new, slacks, cost at z, QP solved)."""
         N, ns = self.N, self.ns
         li = self._lin_in
         li[0][:] = x0
@@ -199,8 +191,6 @@ class ReferenceNMPC:
 
     # ---------------------------------------------------------------------------------------
     def simulate(self, x0, z, lookup: RouteLookup | None) -> tuple[np.ndarray, np.ndarray]:
-        """Positions and speeds k = 1 … N of the model for increments z (eq. 14 a-priori estimate
-        when z is the shifted previous plan); gradient and tunnel factor along the positions."""
         N = self.N
         xi, zi, gi, ti = self._sim_in
         xi[:] = x0
@@ -221,7 +211,6 @@ class ReferenceNMPC:
         return lookup.gradient(s_k), lookup.tunnel_factor(s_k)
 
     def forces(self, F0: float, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Applied forces F_k (k = 0 … N) and commands u_k (k = 0 … N−1) for increments z."""
         F = np.empty(self.N + 1)
         F[0] = F0
         np.cumsum(z, out=F[1:])
@@ -243,19 +232,6 @@ class ReferenceNMPC:
         max_iterations: int | None = None,
         v_limit_fn=None,
     ) -> MPCSolution:
-        """Solve one NMPC problem (eq. 11 for the leader, eq. 12 for a follower) from plain data.
-
-        ``x0`` = (s, v, F) now; ``z_warm`` the warm start (normalised force increments, e.g.
-        :meth:`MPCSolution.warm_start` of the previous step; None: hold the current force);
-        ``lookup`` gives gradient, tunnel factor and v_lim(s) (None: level track, limit from
-        ``v_limit_fn`` or unlimited); ``terminal`` the terminal set (a
-        :class:`~vcsumo.control.mpc_terminal.TerminalSet` or :class:`SpeedProfile`; None: no
-        terminal speed bound); ``v_ref_mps`` scalar or N-vector: v_max of 11a (leader; a follower
-        tracks ``leader.speeds_mps``, 12b); ``v_scale_mps`` the v_max normalising 11a/12b.
-        ``max_iterations`` given: iterate the SQP to convergence (at most that many iterations);
-        None: real-time iteration (one, more only while the plan violates a constraint).  Never
-        raises on an infeasible problem: the solution then has ``ok = False`` and the full brake.
-        """
         t_start = time.perf_counter()
         cfg, N, dt = self.cfg, self.N, self.dt
         try:
@@ -322,10 +298,6 @@ class ReferenceNMPC:
                            leader=leader, cost=cost)
 
     def _term(self, terminal, x0, z, S, V) -> np.ndarray:
-        """Terminal-set data (11i/12k) at the linearisation point: [β, dβ/ds, c] with β = v_DP(s)²
-        evaluated at s̄_N + c·v̄_N.  c = t_r/2, t_r the time to ramp the force from F̄_N to the full
-        brake at the jerk limit (eq. 4c): a ramp acts as a dead time of half its length
-        (``terminal_ramp_allowance``; c = 0 gives the paper's v_N ≤ v_DP(s_N))."""
         if terminal is None:
             return np.array([1e6, 0.0, 0.0])
         c = 0.0
@@ -343,7 +315,6 @@ class ReferenceNMPC:
         return np.minimum(lookup.speed_limit(S), self.p.max_speed_ms)
 
     def _violations(self, x0, z, S, V, vlim, beta_N, srear, vl_N) -> dict:
-        """Largest violation of each constraint on a plan (0 when satisfied)."""
         cfg = self.cfg
         zs = self.z_scale
         u = x0[2] + zs * (np.cumsum(z) - z) + (zs / self.alpha) * z
@@ -373,7 +344,6 @@ class ReferenceNMPC:
         return out
 
     def fallback(self, x0, t0_s: float, lookup: RouteLookup | None = None, leader: LeaderPrediction | None = None, reason: str = "") -> MPCSolution:
-        """The safe solution: full service brake now (−min(M·a_br, P_br/v)), plan = braking at the jerk limit."""
         return self._fallback(x0, t0_s, lookup, leader, time.perf_counter(), reason)
 
     def _fallback(self, x0, t0_s, lookup, leader, t_start, reason) -> MPCSolution:
