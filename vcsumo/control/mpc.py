@@ -153,11 +153,11 @@ class _MPCBase:
         """The vectorised route look-up and the terminal set (DP of eq. 10) for ``profile`` (cached)."""
         return self._route.get(profile, self.params, self.settings, self.route_end_m)
 
-    def _x0(self, obs: Observation) -> np.ndarray:
+    def _x0(self, obs: Observation) -> tuple:
         F = obs.ego.force_n
         if not self.settings.use_measured_force and self._last is not None:
             F = float(self._last.forces_n[1])
-        return np.array([obs.ego.position_m, obs.ego.speed_mps, F])
+        return (obs.ego.position_m, obs.ego.speed_mps, F)
 
     def _warm(self, obs: Observation) -> np.ndarray | None:
         """The previous plan shifted by the elapsed steps (eq. 14b-c), None without one."""

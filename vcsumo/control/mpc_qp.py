@@ -108,7 +108,7 @@ class CondensedQP:
         self.ns = ns = 3 if follower else 2  # slacks: speed limit, terminal set, (d_min)
         self.n = n = N + ns
         self.m = m = 3 * N + 1 + (N + 1 if follower else 0)
-        key = (params, N, self.dt, follower, settings.stop_smoothing_mps, self.z_scale, self.alpha, self.z_max, settings.slack_penalty)
+        key = (params, N, self.dt, follower, settings.stop_smoothing_mps, self.z_scale, self.alpha, self.z_max)  # what _build compiles in
         if key not in _BUILD_CACHE:
             _BUILD_CACHE[key] = self._build()
         self.functions = dict(zip(("lin", "sim", "qpdata", "post", "qp"), _BUILD_CACHE[key]))
