@@ -38,10 +38,13 @@ Solution method
 Single shooting, condensed: the decision variables are the normalised force increments
 z_k = (F_{k+1} − F_k)/(j_max·M·Δt), so the jerk limits are simple bounds, and
 u_k = F_k + (F_{k+1} − F_k)/α (α = Δt/τ).  One SQP iteration evaluates a compiled CasADi SX
-function for the trajectory and its exact Jacobians (forward sensitivities, lower triangular),
-assembles the Gauss–Newton QP in numpy (N + 3 variables, 4N + 2 rows for a follower) and solves
-it with qpOASES (``casadi.conic``, dense, hot-started from the previous step); CasADi reads and
-writes preallocated numpy buffers (``Function.buffer``), so no conversion happens per call.
+function that gives the Gauss–Newton QP (N + 3 variables, 4N + 2 rows for a follower) from the
+trajectory and its exact Jacobians (forward sensitivities, lower triangular), the Hessian as one
+numpy product, solves the QP with qpOASES (``casadi.conic``, dense, hot-started from the previous
+step) and evaluates a second SX function for the new plan and its constraint violations; CasADi
+reads and writes preallocated numpy buffers (``Function.buffer``), so no conversion happens per
+call.  (The numpy assembly the compiled one replaced is kept in ``tests/test_mpc_compiled.py`` as
+the reference it is tested against.)
 In closed loop the controller runs real-time iterations: one SQP iteration from the warm start
 (previous solution shifted by one step, last increment zero: eq. 14b-c), more (up to
 ``sqp_max_iterations``) only while the re-simulated plan violates a constraint beyond the
@@ -150,11 +153,11 @@ class _MPCBase:
         """The vectorised route look-up and the terminal set (DP of eq. 10) for ``profile`` (cached)."""
         return self._route.get(profile, self.params, self.settings, self.route_end_m)
 
-    def _x0(self, obs: Observation) -> np.ndarray:
+    def _x0(self, obs: Observation) -> tuple:
         F = obs.ego.force_n
         if not self.settings.use_measured_force and self._last is not None:
             F = float(self._last.forces_n[1])
-        return np.array([obs.ego.position_m, obs.ego.speed_mps, F])
+        return (obs.ego.position_m, obs.ego.speed_mps, F)
 
     def _warm(self, obs: Observation) -> np.ndarray | None:
         """The previous plan shifted by the elapsed steps (eq. 14b-c), None without one."""
@@ -164,7 +167,11 @@ class _MPCBase:
         if shift <= 0:
             return self._last.z.copy()
         z = self._last.z[shift:]
-        return np.append(z, np.zeros(self.settings.horizon_steps - len(z))) if len(z) else None
+        if not len(z):
+            return None
+        w = np.zeros(self.settings.horizon_steps)
+        w[: len(z)] = z
+        return w
 
     def _v_scale(self, obs: Observation) -> float:
         if self.settings.v_max_mps is not None:

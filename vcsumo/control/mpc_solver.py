@@ -90,119 +90,111 @@ class CondensedNMPC(CondensedQP):
         raises on an infeasible problem: the solution then has ``ok = False`` and the full brake.
         """
         t_start = time.perf_counter()
-        cfg, N, dt = self.cfg, self.N, self.dt
+        cfg, N = self.cfg, self.N
         try:
-            x0 = np.array([float(x0[0]), max(float(x0[1]), 0.0), float(x0[2])])
-            if not np.all(np.isfinite(x0)):
+            s0, v0, f0 = float(x0[0]), max(float(x0[1]), 0.0), float(x0[2])
+            if not (math.isfinite(s0) and math.isfinite(v0) and math.isfinite(f0)):
                 raise ValueError("non-finite state")
-            if z_warm is None:
-                z = np.zeros(N)
-            else:
-                z = np.minimum(np.maximum(np.asarray(z_warm, dtype=float).ravel()[:N], -self.z_max), self.z_max)
-                if len(z) < N:
-                    z = np.append(z, np.zeros(N - len(z)))
-                z = np.where(np.isfinite(z), z, 0.0)
+            x0 = (s0, v0, f0)
+            z = self._warm_z(z_warm)
             if self.follower:
                 if leader is None:
                     raise ValueError("the follower NMPC needs a leader prediction")
-                srear = np.asarray(leader.rear_m[1 : N + 1], dtype=float)
-                vref = np.asarray(leader.speeds_mps[1 : N + 1], dtype=float)
+                np.subtract(leader.positions_m[1 : N + 1], leader.length_m, out=self.srear)  # leader rear (eq. 8)
+                self.vref[:] = leader.speeds_mps[1 : N + 1]
                 vl_N = float(leader.speeds_mps[N])
-                fw = (cfg.k_d, cfg.d_des_m, cfg.d_min_m, 1.0 / (2.0 * cfg.a_follower_mps2))
-                w = (cfg.k_v_follower, cfg.k_j_follower, float(v_scale_mps), vl_N * vl_N / (2.0 * cfg.a_leader_mps2))
-                if not (np.all(np.isfinite(srear)) and np.all(np.isfinite(vref))):
+                if not (math.isfinite(self.srear.sum()) and math.isfinite(self.vref.sum())):
                     raise ValueError("non-finite leader prediction")
+                self.set_weights(cfg.k_v_follower, cfg.k_j_follower, float(v_scale_mps), vl_N * vl_N / (2.0 * cfg.a_leader_mps2), cfg.k_d,
+                                 cfg.d_des_m, cfg.d_min_m, 1.0 / (2.0 * cfg.a_follower_mps2))
             else:
-                srear, vl_N, fw = None, 0.0, None
-                vref = np.broadcast_to(np.asarray(v_ref_mps, dtype=float), (N,))
-                w = (cfg.k_v_leader, cfg.k_j_leader, float(v_scale_mps), 0.0)
+                self.vref[:] = v_ref_mps
+                self.set_weights(cfg.k_v_leader, cfg.k_j_leader, float(v_scale_mps), 0.0)
             converge = max_iterations is not None
             iters = max_iterations or cfg.sqp_max_iterations
-            S, V = self.simulate(x0, z, lookup)  # a-priori estimate (eq. 14)
+            S, V = self.simulate(x0, z, lookup)  # a-priori estimate (eq. 14); sets x0, z, grad, tf
+            F_N = f0 + self.z_scale * float(z.sum())
+            varying = lookup is not None and not lookup.uniform
             sol = None
             for it in range(1, iters + 1):
-                s_k = np.empty(N)
-                s_k[0] = x0[0]
-                s_k[1:] = S[:-1]  # positions k = 0..N-1 for the dynamics data
-                grad, tf = self.space_terms(lookup, s_k)
-                vlim = self._vlim(lookup, v_limit_fn, S)
-                term = self._term(terminal, x0, z, S, V)
-                z_new, S, V, slacks, cost, solved = self.sqp_iteration(x0, z, grad, tf, vlim, term, vref, w, srear, fw)
-                if not solved:
+                if varying:  # gradient and tunnel factor at the positions k = 0..N-1 of the latest plan
+                    s_k = np.concatenate(((s0,), S[:-1]))
+                    self.grad[:], self.tf[:] = lookup.gradient(s_k), lookup.tunnel_factor(s_k)
+                self._set_vlim(lookup, v_limit_fn, S, self.vlim)
+                beta, dbeta, c = self._term(terminal, F_N, S[-1], V[-1])
+                self.term[:] = (beta, dbeta, c)
+                if not self.sqp_iteration():
                     break
-                step_norm = float(np.max(np.abs(z_new - z)))
-                z = z_new
+                step_norm = float(np.abs(self.z_new - self.z).max()) if converge else 0.0
+                S, V, F_N = self.pos[1:], self.spd[1:], float(self.F[-1])
                 # check the nonlinear plan against every constraint
-                vlim_chk = vlim if it == 1 and not converge else np.minimum(vlim, self._vlim(lookup, v_limit_fn, S))
-                beta_N = float(self._term(terminal, x0, z, S, V)[0])
-                viol = self._violations(x0, z, S, V, vlim_chk, beta_N, srear, vl_N)
+                f_v, p_v, sp_v, g_v, ts_v = self.viol[:5].tolist()
+                if it > 1 or converge:
+                    vlim_chk = np.minimum(self.vlim, self._set_vlim(lookup, v_limit_fn, S, np.empty(N)))
+                    sp_v = max(float((V - vlim_chk).max()), 0.0)
+                beta_N = self._term(terminal, F_N, S[-1], V[-1])[0]
+                v_N = float(V[-1])
+                excess = max(v_N * v_N - beta_N, 0.0)
+                vb = math.sqrt(max(beta_N, 0.0))
+                viol = {"force_n": f_v, "power_rel": p_v, "speed_mps": sp_v,
+                        # v_N² ≤ β as a speed excess: √(v_N² − β + v_b²) − v_b, v_b = √max(β, 0)
+                        "terminal_speed_mps": max(math.sqrt(excess + vb * vb) - vb, 0.0),
+                        # … and as the extra distance it needs to stop, (v_N² − β)/(2·a_br)
+                        "terminal_overshoot_m": excess / (2.0 * self.p.service_brake_decel_mps2), "gap_m": g_v, "terminal_set_m": ts_v}
                 terminal_ok = viol["terminal_speed_mps"] <= cfg.tol_speed_mps or viol["terminal_overshoot_m"] <= cfg.tol_gap_m
-                ok = (viol["speed_mps"] <= cfg.tol_speed_mps and terminal_ok and viol["gap_m"] <= cfg.tol_gap_m
-                      and viol["terminal_set_m"] <= cfg.tol_gap_m and viol["power_rel"] <= cfg.tol_power_rel and viol["force_n"] <= 1.0)
-                sol = (ok, z, S, V, slacks, viol, it, vlim, term, cost)
+                ok = (sp_v <= cfg.tol_speed_mps and terminal_ok and g_v <= cfg.tol_gap_m
+                      and ts_v <= cfg.tol_gap_m and p_v <= cfg.tol_power_rel and f_v <= 1.0)
+                plan = (self.z_new, self.pos, self.spd, self.F, self.u, self.dx[N:], self.vlim)
+                sol = (ok, viol, it, beta, self._cost[0])
                 if ok and (not converge or step_norm < 1e-7):
                     break
+                plan = tuple(a.copy() for a in plan)  # the buffers are rewritten by the next iteration
+                z[:] = self.z_new
+                self.z[:] = z
         except Exception as exc:  # never raise: brake
             return self._fallback(x0, t0_s, None, leader, t_start, f"error: {exc!r}")
         if sol is None:
             return self._fallback(x0, t0_s, lookup, leader, t_start, "the QP solver failed")
-        ok, z, S, V, slacks, viol, it, vlim, term, cost = sol
-        F, u = self.forces(x0[2], z)
+        ok, viol, it, beta, cost = sol
+        z, pos, spd, F, u, slacks, vlim = (a.copy() for a in plan)
         force_now = float(u[0]) if ok else float(-brake_force_limit(self.p, x0[1]))
-        return MPCSolution(ok=ok, force_n=force_now, times_s=t0_s + dt * np.arange(N + 1), positions_m=np.concatenate(([x0[0]], S)),
-                           speeds_mps=np.concatenate(([x0[1]], V)), forces_n=F, commands_n=u, z=z, slacks=slacks, violation=viol, iterations=it,
-                           solve_time_s=time.perf_counter() - t_start, v_limit_mps=vlim, v_terminal_mps=math.sqrt(max(term[0], 0.0)),
-                           leader=leader, cost=cost)
+        return MPCSolution(ok=ok, force_n=force_now, times_s=t0_s + self._k_dt, positions_m=pos, speeds_mps=spd, forces_n=F, commands_n=u, z=z,
+                           slacks=slacks, violation=viol, iterations=it, solve_time_s=time.perf_counter() - t_start, v_limit_mps=vlim,
+                           v_terminal_mps=math.sqrt(max(beta, 0.0)), leader=leader, cost=float(cost))
 
-    def _term(self, terminal, x0, z, S, V) -> np.ndarray:
-        """Terminal-set data (11i/12k) at the linearisation point: [β, dβ/ds, c] with β = v_DP(s)²
+    def _warm_z(self, z_warm) -> np.ndarray:
+        """The warm start within the jerk bounds, padded with zeros to N, non-finite entries zero (a new array)."""
+        N, zmax = self.N, self.z_max
+        if z_warm is None:
+            return np.zeros(N)
+        zw = np.asarray(z_warm, dtype=float).ravel()[:N]
+        z = np.minimum(zw, zmax) if len(zw) == N else np.append(np.minimum(zw, zmax), np.zeros(N - len(zw)))
+        np.maximum(z, -zmax, out=z)
+        if not math.isfinite(z.sum()):
+            z[~np.isfinite(z)] = 0.0
+        return z
+
+    def _term(self, terminal, F_N: float, s_N: float, v_N: float) -> tuple[float, float, float]:
+        """Terminal-set data (11i/12k) at the linearisation point: (β, dβ/ds, c) with β = v_DP(s)²
         evaluated at s̄_N + c·v̄_N.  c = t_r/2, t_r the time to ramp the force from F̄_N to the full
         brake at the jerk limit (eq. 4c): a ramp acts as a dead time of half its length
         (``terminal_ramp_allowance``; c = 0 gives the paper's v_N ≤ v_DP(s_N))."""
         if terminal is None:
-            return np.array([1e6, 0.0, 0.0])
+            return 1e6, 0.0, 0.0
         c = 0.0
         if self.cfg.terminal_ramp_allowance:
-            F_N = x0[2] + self.z_scale * float(z.sum())
             c = 0.5 * max(F_N - self.u_min, 0.0) * self.dt / (self.z_max * self.z_scale)
-        beta, slope = terminal.beta(float(S[-1]) + c * float(V[-1]))
-        return np.array([float(beta), float(slope), c])
+        beta, slope = terminal.beta(float(s_N) + c * float(v_N))
+        return float(beta), float(slope), c
 
-    def _vlim(self, lookup, v_limit_fn, S) -> np.ndarray:
+    def _set_vlim(self, lookup, v_limit_fn, S, out: np.ndarray) -> np.ndarray:
+        """v_lim at the positions S (k = 1 … N), written into ``out``."""
         if v_limit_fn is not None:
-            return np.asarray(v_limit_fn(S), dtype=float)
-        if lookup is None:
-            return np.full(self.N, 1e3)
-        return np.minimum(lookup.speed_limit(S), self.p.max_speed_ms)
-
-    def _violations(self, x0, z, S, V, vlim, beta_N, srear, vl_N) -> dict:
-        """Largest violation of each constraint on a plan (0 when satisfied)."""
-        cfg = self.cfg
-        zs = self.z_scale
-        u = x0[2] + zs * (np.cumsum(z) - z) + (zs / self.alpha) * z
-        vprev = np.empty(self.N)
-        vprev[0] = x0[1]
-        vprev[1:] = V[:-1]
-        pw = u * vprev
-        p_hi = float(pw.max()) - self.p_dr
-        p_lo = (-self.p_br - float(pw.min())) if math.isfinite(self.p_br) else -1.0
-        vb = math.sqrt(max(beta_N, 0.0))
-        out = {
-            "force_n": max(float(u.max()) - self.u_max, self.u_min - float(u.min()), 0.0),
-            "power_rel": max(p_hi / self.p_dr, p_lo / self.p_br if math.isfinite(self.p_br) else 0.0, 0.0),
-            "speed_mps": max(float((V - vlim).max()), 0.0),
-            # v_N² ≤ β as a speed excess: √(v_N² − β + v_b²) − v_b, v_b = √max(β, 0)
-            "terminal_speed_mps": max(math.sqrt(max(V[-1] ** 2 - beta_N, 0.0) + vb * vb) - vb, 0.0),
-            # … and as the extra distance it needs to stop, (v_N² − β)/(2·a_br)
-            "terminal_overshoot_m": max(V[-1] ** 2 - beta_N, 0.0) / (2.0 * self.p.service_brake_decel_mps2),
-            "gap_m": 0.0,
-            "terminal_set_m": 0.0,
-        }
-        if srear is not None:
-            d = srear - S
-            out["gap_m"] = max(cfg.d_min_m - float(d.min()), 0.0)
-            h = d[-1] + vl_N**2 / (2 * cfg.a_leader_mps2) - V[-1] ** 2 / (2 * cfg.a_follower_mps2)
-            out["terminal_set_m"] = max(cfg.d_min_m - h, 0.0)
+            out[:] = v_limit_fn(S)
+        elif lookup is None:
+            out.fill(1e3)
+        else:
+            np.minimum(lookup.speed_limit(S), self.p.max_speed_ms, out=out)
         return out
 
     def fallback(self, x0, t0_s: float, lookup: RouteLookup | None = None, leader: LeaderPrediction | None = None, reason: str = "") -> MPCSolution:

@@ -44,13 +44,12 @@ class TerminalSet:
 
     def beta(self, s) -> tuple[np.ndarray, np.ndarray]:
         """(v_max(s)², d/ds), extended past the end (see :func:`~vcsumo.control.dp_profile.beta_curve`)."""
-        if np.ndim(s) == 0:
-            b2 = self.__dict__.get("_b2")
-            if b2 is None:
-                b2 = self.v_max_mps * self.v_max_mps
-                object.__setattr__(self, "_b2", b2)
-                object.__setattr__(self, "_pos_list", self.positions_m.tolist())
-            return beta_curve_scalar(self._pos_list, b2, self.end_decel_mps2, float(s))
+        if type(s) is float or np.ndim(s) == 0:  # scalar fast path on lists (one look-up per NMPC iteration)
+            lists = self.__dict__.get("_lists")
+            if lists is None:
+                lists = (self.positions_m.tolist(), (self.v_max_mps * self.v_max_mps).tolist())
+                object.__setattr__(self, "_lists", lists)
+            return beta_curve_scalar(lists[0], lists[1], self.end_decel_mps2, float(s))
         return beta_curve(self.positions_m, self.v_max_mps, self.end_decel_mps2, s)
 
 

@@ -132,22 +132,17 @@ def predict_sh_from_plan(plan_times_s, plan_positions_m, plan_speeds_mps, t0_s: 
     t = t0_s + dt * np.arange(horizon + 1)
     s = np.interp(t, T, P)
     v = np.interp(t, T, V)
-    beyond = t > T[-1] + 1e-9
-    if np.any(beyond):
-        if len(T) >= 2:
-            acc = (V[-1] - V[-2]) / max(T[-1] - T[-2], 1e-9)
-        else:
-            acc = 0.0
-        tau = t[beyond] - T[-1]
+    t_end, v_end = float(T[-1]), float(V[-1])
+    if t[-1] > t_end + 1e-9:  # t increases: the times beyond the plan are a suffix, from j
+        j = int(np.searchsorted(t, t_end + 1e-9, side="right"))
+        acc = (v_end - float(V[-2])) / max(t_end - float(T[-2]), 1e-9) if len(T) >= 2 else 0.0
+        tt = t[j:] - t_end
         if acc < 0:
-            tt = np.minimum(tau, V[-1] / -acc if V[-1] > 0 else 0.0)
-        else:
-            tt = tau
-        v[beyond] = np.maximum(V[-1] + acc * tt, 0.0)
-        s[beyond] = P[-1] + V[-1] * tt + 0.5 * acc * tt * tt
-    if measured is not None:
-        s = s + (measured[0] - s[0])
-        v = v.copy()
+            tt = np.minimum(tt, v_end / -acc if v_end > 0 else 0.0)
+        v[j:] = np.maximum(v_end + acc * tt, 0.0)
+        s[j:] = float(P[-1]) + v_end * tt + 0.5 * acc * tt * tt
+    if measured is not None:  # s and v are new arrays (np.interp)
+        s += measured[0] - s[0]
         v[0] = measured[1]
     return s, v
 

@@ -86,6 +86,7 @@ class RouteLookup:
         vals = np.array([self._limit_scalar(m) for m in mids])
         self._lim_bp = bp
         self._lim_val = vals
+        self._lim_ext = np.concatenate((vals[:1], vals))
         self.uniform = bool(np.all(grads == grads[0]) and np.all(self._tf == self._tf[0]))
         """Gradient and tunnel factor are the same everywhere (look-ups can be skipped)."""
         self.gradient0 = float(grads[0])
@@ -99,9 +100,8 @@ class RouteLookup:
     # ---------------------------------------------------------------------------------------
     def speed_limit(self, s) -> np.ndarray:
         """Train-length speed limit v_lim(s), m/s (vectorised)."""
-        s = np.asarray(s, dtype=float)
-        i = np.searchsorted(self._lim_bp, s, side="right") - 1
-        return self._lim_val[np.clip(i, 0, len(self._lim_val) - 1)]
+        # index i + 1 of the piece holding s into [v_0, v_0, v_1, …] (i = −1 before the first breakpoint)
+        return self._lim_ext[np.searchsorted(self._lim_bp, np.asarray(s, dtype=float), side="right")]
 
     def _g_int(self, x: np.ndarray) -> np.ndarray:
         out = np.interp(x, self._g_knots, self._g_cum)
