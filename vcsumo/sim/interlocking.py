@@ -100,6 +100,8 @@ class MergeLocking:
                 if e.to_node in merges:
                     out.append(_Approach(e.to_node, float(t.profile.starts_m[i] + t.profile.lengths_m[i]), e.track))
             self.approaches[t.id] = out
+        self._approach_s = {tid: sorted(a.s_m for a in aps) for tid, aps in self.approaches.items()}
+        """Route positions of each train's junction signals, sorted."""
         self._last_approach = {tid: max((a.s_m for a in aps), default=-math.inf) for tid, aps in self.approaches.items()}
         """The farthest junction signal on each train's route: past it nothing here concerns the train, m."""
         self.junctions: dict[str, _Junction] = {n: _Junction(n) for n in merges}
@@ -266,6 +268,11 @@ class MergeLocking:
         if s_m > self._last_approach.get(tid, -math.inf):
             return None
         length = self.plans[leader].stock.length_m if leader in self.plans else 0.0
+        signals_l = self._approach_s.get(leader)
+        if signals_l is not None:  # no junction signal of the train ahead between its rear and its front: none fouled
+            k = bisect_right(signals_l, leader_s_m - length)
+            if k == len(signals_l) or signals_l[k] > leader_s_m:
+                return None
         for ap in self.approaches.get(tid, ()):
             if ap.s_m < s_m:
                 continue
