@@ -8,10 +8,13 @@ the top of the box), on a −11.5 ‰ descent, with its force lag (0.5 s) and je
 the slowest brake build-up from full traction of the set.  The predecessor is far ahead (the
 separation test never binds).  The guard's curves are service-brake curves: the train must keep
 them on its service brake (the emergency brake is the reserve; a curve that needs it is not a
-service curve).  On main@4c41627 the curves had 1.5 steps of dead time and no build-up: from full
-traction the follower overran its stop by 40.0 m (service brake only; 45.1 m from 600 m), entered a
-72 km/h limit at 75.7 km/h (the set's tolerance is 2 km/h), and with its emergency brake it made
-its stop only by 73 emergency activations (these figures: that guard, this scenario).
+service curve).  On main@4c41627 the curves had 1.5 steps of dead time and no build-up, and the
+guard's braking command was capped at the service force of the lightest train of the box (461 t ·
+0.585 m/s², 0.50 m/s² on 540 t): from full traction, on its service brake, the follower overran its
+stop by 44.8 m (from 600 m), 39.8 m (1,200 m), 12.4 m (2,500 m) and entered a 72 km/h limit at
+75.0 km/h (600 m; the set's tolerance is 2 km/h); with its emergency brake it made them only by
+47, 73 and 102 emergency activations (stops) and 14–32 (limits).  Now: 0 m, at most 72 km/h at the
+limit, 0 emergency activations (the stop is reached 5–6 s later).
 """
 
 from __future__ import annotations
@@ -74,7 +77,7 @@ def _approach(distance_m: float, v0_mps: float, limit_mps: float | None, emergen
     trains = [OfflineTrain("L", P, PlantState(90000.0, 83.0, 0.0), ForceProfile((0.0,), (4e5,)), nominal=P),
               OfflineTrain("F", WORST, PlantState(START_M, v0_mps, 0.0), Greedy(), nominal=P)]
     run = run_convoy(trains, route, DT, 400.0, channel=Channel(ChannelConfig(period_s=DT)), known_at_start=True, emergency_brake=emergency_brake,
-                     stop_when=lambda t, xs: xs[1].s_m > target + 3000.0 or (t > 5.0 and xs[1].v_mps == 0.0))
+                     stop_when=lambda t, xs: xs[1].s_m > target + 3000.0 or (t > 5.0 and xs[1].v_mps < 1e-3))
     rows = run.frame[run.frame.train == "F"]
     return rows, target, run.emergency_activations["F"], guard
 
@@ -85,7 +88,7 @@ def test_from_full_traction_the_follower_makes_its_stop_on_its_service_brake(dis
     service brake alone, and with its emergency brake available never calls for it."""
     rows, stop, _, guard = _approach(distance_m, 0.0, None, emergency_brake=False)
     assert rows.position_m.max() <= stop + 1e-6
-    assert rows.speed_mps.iloc[-1] == 0.0 and rows.position_m.iloc[-1] > stop - 0.05 * distance_m  # it did run to the stop
+    assert rows.speed_mps.iloc[-1] < 0.05 and rows.position_m.iloc[-1] > stop - 1.0  # it did run to the stop
     assert guard.interventions > 0 and not rows.emergency.any()
     rows, stop, emergencies, _ = _approach(distance_m, 0.0, None, emergency_brake=True)
     assert emergencies == 0 and rows.position_m.max() <= stop + 1e-6
@@ -96,10 +99,12 @@ def test_from_full_traction_the_follower_enters_a_lower_limit_at_it(distance_m, 
     """Towards a lower limit at full traction: its front enters the limit at no more than the limit
     (the health monitor counts overspeed above the limit + 2 km/h; the guard's curve ends at the limit
     itself), on the service brake, with no emergency brake called for."""
-    rows, at, emergencies, guard = _approach(distance_m, v0_mps, limit_mps, emergency_brake=True)
-    inside = rows[rows.position_m >= at]
-    assert len(inside) > 10 and guard.interventions > 0
-    assert inside.speed_mps.max() <= limit_mps + 1e-3
-    assert emergencies == 0 and not rows.emergency.any()
+    for emergency_brake in (False, True):
+        rows, at, emergencies, guard = _approach(distance_m, v0_mps, limit_mps, emergency_brake=emergency_brake)
+        inside = rows[rows.position_m >= at]
+        assert len(inside) > 10 and guard.interventions > 0
+        assert inside.speed_mps.iloc[0] <= limit_mps + 1e-3  # the curve ends at the limit
+        assert inside.speed_mps.max() <= limit_mps + TOL_MPS  # holding it on the descent (the nominal model, 40 t lighter)
+        assert emergencies == 0 and not rows.emergency.any()
     before = rows[rows.position_m < at - 3000.0]
     assert before.empty or before.speed_mps.max() > limit_mps + TOL_MPS  # it was running faster than the limit before it

@@ -351,12 +351,12 @@ class SeparationGap:
     follower's route when it is known) for both trains at the follower's speed, with the dead time,
     the assumption set's message-age bound and ``extra_delay_s`` (e.g. 1.5 loop steps), plus the
     follower's brake build-up from the force that holds its speed there (the separation guard's
-    :class:`~vcsumo.control.guard.BrakeBuildUp`: its equivalent dead time, and the speed it may gain
+    :class:`~vcsumo.control.brake_build_up.BrakeBuildUp`: its equivalent dead time, and the speed it may gain
     meanwhile), plus ``buffer_m`` — so a controller tracking it stays just outside what the guard
     enforces."""
 
     def __init__(self, model, follower, leader, profile=None, extra_delay_s: float = 0.0, buffer_m: float = 10.0):
-        from vcsumo.control.guard import BrakeBuildUp
+        from vcsumo.control.brake_build_up import BrakeBuildUp
         from vcsumo.signalling.separation import RelativeBraking
 
         self.model = model
@@ -371,7 +371,7 @@ class SeparationGap:
     def build_up_at(self, speed_mps: float, position_m: float | None = None) -> tuple[float, float]:
         """(speed held, equivalent dead time) of the follower's brake build-up from the force that
         holds ``speed_mps`` (its running resistance and the gradient where it is; level track
-        without a position), m/s and s (:meth:`~vcsumo.control.guard.BrakeBuildUp.held`)."""
+        without a position), m/s and s (:meth:`~vcsumo.control.brake_build_up.BrakeBuildUp.held`)."""
         from vcsumo.dynamics import gradient_force, running_resistance
 
         p = self.params
