@@ -382,16 +382,20 @@ class SeparationGap:
         return self.build_up.held(self.rule.follower if on_route else None, position_m or 0.0, speed_mps, force)
 
     def gap_m(self, speed_mps: float, predecessor_speed_mps: float | None = None, position_m: float | None = None) -> float:
+        """The spacing at the follower's speed with the predecessor at ``predecessor_speed_mps`` when it is
+        slower (a braking predecessor needs more room: the rule the guard keeps), else at the follower's
+        speed (None: the same speed), m."""
         from vcsumo.signalling.separation import relative_braking_gap
 
         v = max(speed_mps, 0.0)
+        v_l = v if predecessor_speed_mps is None or not math.isfinite(predecessor_speed_mps) else min(v, max(predecessor_speed_mps, 0.0))
         v_dead, t_act = self.build_up_at(v, position_m)
-        a_f, a_l = self.model.vc_decels(self.follower, self.leader, v, v)
-        level = self.model.margin_m + relative_braking_gap(v_dead, v, a_f, a_l, self.delay_s + t_act)
+        a_f, a_l = self.model.vc_decels(self.follower, self.leader, v, v_l)
+        level = self.model.margin_m + relative_braking_gap(v_dead, v_l, a_f, a_l, self.delay_s + t_act)
         if self.rule is None or position_m is None:
             return level + self.buffer_m
         s_l = position_m + level + self.leader.length_m
-        return self.rule.required_gap(position_m, v_dead, s_l, v, self.delay_s + t_act) + self.buffer_m
+        return self.rule.required_gap(position_m, v_dead, s_l, v_l, self.delay_s + t_act) + self.buffer_m
 
     def evaluate(self, time_s: float, position_m: float, speed_mps: float, predecessor_speed_mps: float) -> GapSample:
         return GapSample(self.gap_m(speed_mps, predecessor_speed_mps, position_m))
