@@ -60,6 +60,7 @@ model — may be switched on explicitly).
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -205,17 +206,26 @@ class NextStepLine:
         self.brake = step.build.service_mps2
         self.half_s = 0.5 * step.dt
         s = step.s
+        self.targets = []
+        targets, positions = guard._restrictions(obs.profile)
+        i = bisect_right(positions, s)
+        stop = obs.next_stop_m if obs.next_stop_m is not None and obs.next_stop_m > s else math.inf
+        nearest = min(positions[i] if i < len(positions) else math.inf, stop)
+        if not math.isfinite(nearest):
+            return
+        # a cheap bound first (the top speed it may reach from full traction on the route's steepest descent)
+        t_full, a_hold = guard._hold_bound(obs.profile)
+        v_hi = step.v + a_hold * (step.dt + t_full)
+        if nearest - s > self.service.stopping_bound(v_hi, t_full + self.half_s) + (step.s1 - s) + 50.0:
+            return
         v_top, t_top, _ = step.state(step.build.full_traction_n, self.brake)  # the farthest it may run before it stands
         reach = self.service.stopping_distance(step.s1, v_top, t_top + self.half_s) + (step.s1 - s) + 50.0
-        self.targets = []
-        for s_t, v_t in guard._restrictions(obs.profile):
-            if s_t <= s:
-                continue
+        for s_t, v_t in targets[i:]:
             if s_t - s > reach:
                 break
             self.targets.append((s_t, v_t))
-        if obs.next_stop_m is not None and s < obs.next_stop_m <= s + reach:
-            self.targets.append((obs.next_stop_m, 0.0))
+        if stop - s <= reach:
+            self.targets.append((stop, 0.0))
 
     def fits(self, next_force_n: float) -> bool:
         if not self.targets:
@@ -252,7 +262,8 @@ class SeparationGuard:
         self.last_speed_mps = math.nan
         self.last_force_in_n = math.nan
         self._rules: dict[int, tuple] = {}
-        self._targets: dict[int, list] = {}
+        self._targets: dict[int, tuple] = {}
+        self._bounds: dict[int, tuple[float, float]] = {}
 
     def _rule(self, profile: RouteProfile) -> tuple[RelativeBraking, RouteBraking]:
         r = self._rules.get(id(profile))
@@ -267,13 +278,24 @@ class SeparationGuard:
             pred = predecessor_estimate(obs, self.predecessor_params.length_m, self.cfg.sensor)
         return NextStepSeparation(self, obs, pred)
 
-    def _restrictions(self, profile: RouteProfile) -> list[tuple[float, float]]:
-        """(position, speed) of every lower limit of the route, sorted (once per route)."""
+    def _restrictions(self, profile: RouteProfile) -> tuple[list[tuple[float, float]], list[float]]:
+        """(position, speed) of every lower limit of the route, sorted, and their positions (once per route)."""
         targets = self._targets.get(id(profile))
         if targets is None:
-            self._targets = {id(profile): profile.restriction_targets()}
+            lows = profile.restriction_targets()
+            self._targets = {id(profile): (lows, [p for p, _ in lows])}
             targets = self._targets[id(profile)]
         return targets
+
+    def _hold_bound(self, profile: RouteProfile) -> tuple[float, float]:
+        """(the build-up from full traction to the service brake, s; the acceleration full traction
+        may give meanwhile on the route's steepest descent, m/s²) — bounds of :class:`NextStep` (once per route)."""
+        b = self._bounds.get(id(profile))
+        if b is None:
+            service = self._rule(profile)[1]
+            b = self.build_up.actuation_time(None, self.build_up.service_mps2), self.build_up.hold_accel(self.build_up.full_traction_n, max(0.0, -float(min(service.g_low))))
+            self._bounds = {id(profile): b}
+        return b
 
     def line(self, obs: Observation, step: NextStep | None = None) -> NextStepLine:
         """The step's line test: the service-brake curves to its stop and the lower limits ahead after
@@ -307,7 +329,7 @@ class SeparationGuard:
         prof, s, v, dt = obs.profile, obs.ego.position_m, obs.ego.speed_mps, obs.step_s
         v_perm = min(prof.speed_limit_train(s, self.follower.length_m), self.follower.max_speed_ms)
         reach = service.stopping_distance(s, v, 2.0 * dt) + 50.0
-        for s_t, v_t in self._restrictions(prof):
+        for s_t, v_t in self._restrictions(prof)[0]:
             if s_t <= s:
                 continue
             if s_t - s > reach:
