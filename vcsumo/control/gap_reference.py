@@ -348,7 +348,8 @@ class JerkLimitedTransition:
 class SeparationGap:
     """The certified spacing as a gap reference: the front-to-rear gap the separation model's
     relative-braking rule needs (:class:`vcsumo.signalling.separation.RelativeBraking`, on the
-    follower's route when it is known) for both trains at the follower's speed, with the dead time,
+    follower's route when it is known) at the follower's speed, the predecessor at its reported speed
+    when that is lower (else at the follower's: the coupled spacing), with the dead time,
     the assumption set's message-age bound and ``extra_delay_s`` (e.g. 1.5 loop steps), plus the
     follower's brake build-up from the force that holds its speed there (the separation guard's
     :class:`~vcsumo.control.brake_build_up.BrakeBuildUp`: its equivalent dead time, and the speed it may gain
