@@ -108,3 +108,35 @@ def test_from_full_traction_the_follower_enters_a_lower_limit_at_it(distance_m, 
         assert emergencies == 0 and not rows.emergency.any()
     before = rows[rows.position_m < at - 3000.0]
     assert before.empty or before.speed_mps.max() > limit_mps + TOL_MPS  # it was running faster than the limit before it
+
+
+def test_the_line_tests_boundary_by_hand():
+    """ETR1000 at 40 m/s and full traction (370 kN), level track, its stop ahead: the guard keeps full
+    traction one more step down to the distance computed by hand, and not 5 cm closer — one step at
+    full traction (Davis A̲, M̲ = 461 t, ρ = 1.04), the build-up from 370 kN to the service brake
+    (0.5 + (370/461 + 0.585)/1.4 s) with the traction held, half a step, then the guaranteed service
+    brake (0.585 + 8,096 N / 540 t, over ρ)."""
+    from vcsumo.control.base import Observation, TrainStateMsg
+    from vcsumo.sim.offline import flat_profile
+
+    level = flat_profile(50000.0, speed_limit_mps=90.0)
+    v, f = 40.0, 370e3
+    v1 = v + DT * (f - 8096.0) / (1.04 * 461e3)
+    t_act = 0.5 + (f / 461e3 + 0.585) / 1.4
+    v_dead = v1 + f / (1.04 * 461e3) * t_act
+    b = (0.585 + 8096.0 / 540e3) / 1.04
+    hand = v * DT + v_dead * (t_act + 0.5 * DT) + v_dead * v_dead / (2.0 * b)
+
+    def passes(distance_m: float) -> bool:
+        guard = SeparationGuard(STOCK, STOCK, 50.0, model=MODEL)
+        obs = Observation(time_s=10.0, step_s=DT, ego_id="F", ego=TrainStateMsg(10.0, 1000.0, v, 0.0, f), params=P, profile=level,
+                          received={}, predecessor=None, next_stop_m=1000.0 + distance_m)
+        line = guard.line(obs)  # the line test alone (no predecessor here)
+        assert line.targets == [(1000.0 + distance_m, 0.0)]
+        return line.fits(f)
+
+    assert passes(hand + 0.05) and not passes(hand - 0.05)
+    assert hand == pytest.approx(1552.1, abs=0.1)
+    # the curve of a brake already applied (1.5 steps of dead time, main@4c41627's) is 153 m shorter
+    old = v * 1.5 * DT + v * v / (2.0 * b)
+    assert hand - old == pytest.approx(153.4, abs=0.1)
