@@ -249,9 +249,10 @@ def test_a_train_that_cannot_start_makes_the_run_exit_1(in_tmp, capsys):
     stock = write(in_tmp / "weak.yaml", FELEZ_TRAIN.replace("max_power_w: 1200000.0", "max_power_w: 1000").replace("name: felez2019", "name: weak"))
     tt = write(in_tmp / "tt.yaml", f"name: weak\nline: felez_test\nservices:\n  - {{id: W, train: {stock}, origin: ORIG, destination: STOP, departure: 0}}\n")
     msg = _one_error(capsys, main(["run", "--line", "felez_test", "--timetable", str(tt), "--regime", "fbs", "--out", "r"]), [], expected=1)
-    assert msg.startswith("error: the run is not healthy: 0 of 1 trains arrived, 1 scheduled stops skipped"), msg
+    assert msg.startswith("error: the run is not healthy: 0 of 1 trains arrived (1 stops not reached)"), msg  # never got there: not skipped
     summary = json.loads((in_tmp / "r" / "summary.json").read_text())  # kept, and valid JSON
     assert summary["healthy"] is False and summary["trains_arrived"] == 0
+    assert (summary["stops_skipped"], summary["stops_not_reached"]) == (0, 1)
 
 
 # -------------------------------------------------------------------------------------------

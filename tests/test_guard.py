@@ -56,7 +56,8 @@ def test_a_command_that_keeps_the_rule_passes_unchanged():
 
 def test_the_build_up_is_the_equivalent_dead_time_from_the_applied_force():
     """τ + (F/M + b)/(2j): M̲ = 461 t for traction, M̄ = 540 t for a brake force, b = 0.9 · 1.2 m/s²;
-    the same figures as the CBF's barrier (one build-up for the guard and the supervisor)."""
+    the CBF's barrier counts the same (one build-up for the guard and the supervisor); to the service
+    brake (b = 0.9 · 0.65) it is shorter."""
     b = BrakeBuildUp(STOCK, MODEL.assumptions)
     full = 0.5 + (0.80 * 540.0 / 461.0 + 1.08) / 1.4  # full traction: M̄·ā_dr over M̲ — 1.94 s
     assert b.actuation_time(None) == pytest.approx(full) and full == pytest.approx(1.9408, abs=1e-4)
@@ -64,9 +65,17 @@ def test_the_build_up_is_the_equivalent_dead_time_from_the_applied_force():
     assert b.actuation_time(370e3) == pytest.approx(0.5 + (370e3 / 461e3 + 1.08) / 1.4)
     assert b.actuation_time(-0.5 * 540e3) == pytest.approx(0.5 + 0.58 / 1.4)
     assert b.actuation_time(-1.08 * 540e3) == 0.0 and b.actuation_time(-2e6) == 0.0
+    assert b.actuation_time(None, b.service_mps2) == pytest.approx(0.5 + (0.80 * 540.0 / 461.0 + 0.585) / 1.4)
+    assert b.actuation_time(-0.585 * 540e3, b.service_mps2) == 0.0 and b.service_command_n(50.0) == pytest.approx(0.585 * 540e3)
+    # the CBF's barrier on the separation model counts the same build-up (it calls this one): its dead
+    # time is the set's 2 s + these figures, the speed it holds meanwhile the traction's (level track)
     cbf = CBFSupervisor(STOCK, STOCK, CBFConfig(), model=MODEL).model_for(level_route())
-    for f in (None, 370e3, 5e4, 0.0, -2e5, -6e5):
-        assert b.actuation_time(f) == pytest.approx(cbf.actuation_time(f))
+    for f, t_act in ((None, full), (0.0, 0.5 + 1.08 / 1.4), (-0.5 * 540e3, 0.5 + 0.58 / 1.4), (-2e6, 0.0)):
+        assert cbf.follower_dead(20.0, f)[1] == pytest.approx(2.0 + t_act)
+    v_held, _ = cbf.follower_dead(20.0, 370e3)
+    assert v_held == pytest.approx(20.0 + 370e3 / (1.04 * 461e3) * (0.5 + (370e3 / 461e3 + 1.08) / 1.4))
+    fixed = CBFSupervisor(STOCK, STOCK, CBFConfig(actuation_delay_s=3.0), model=MODEL).model_for(level_route())
+    assert fixed.follower_dead(20.0, 370e3)[1] == pytest.approx(5.0)  # a configured actuation delay replaces it
     # one step ahead (Δt = 0.2 s): the lag moves 0.4 of the way, the jerk limit at most 0.7 · 461 t · 0.2 s
     assert b.next_force(3e5, -1e6, DT, True, 50.0) == pytest.approx(3e5 - 0.7 * 461e3 * DT)  # the jerk limit binds
     e_low = 461e3 * 1.08
@@ -260,15 +269,20 @@ def test_predecessor_knowledge_sensed_then_message_then_nothing():
 
 
 def test_near_its_stop_the_guard_keeps_to_the_guaranteed_service_curve():
+    """``line_speed`` is the service curve of a train whose brake is applied already (1.5 steps of dead
+    time): on it, a coasting follower gets the full service command — M̄·b = 540 t · 0.585 m/s², so that
+    any train of the box brakes at the curve's guaranteed rate — not an emergency; 1 m/s above it, the
+    emergency brake (the curves with the build-up: tests/test_guard_line.py)."""
     g = SeparationGuard(STOCK, STOCK, 50.0)
     free = g.line_speed(_obs(msg=_msg(20000.0, 50.0, 10.0)))
     stop = g.line_speed(_obs(msg=_msg(20000.0, 50.0, 10.0), stop=1000.0 + 2000.0))
     service = RouteBraking(MODEL, STOCK, PROFILE, "service")
     assert stop == pytest.approx(service.permitted_speed(1000.0, 3000.0, 0.0, 1.5 * DT, 50.0)) and stop < free
-    v = stop + 0.1  # a little above its curve: brought onto it in one step
-    out = g.limit(_obs(v=v, msg=_msg(20000.0, v, 10.0), stop=1000.0 + 2000.0), Command(2e5))
-    assert v + DT * float(acceleration(P, v, out.force_n, 0.0, 1.0)) == pytest.approx(g.line_speed(_obs(v=v, stop=3000.0)), abs=1e-6)
-    assert out.force_n < 0.0 and g.interventions == 1
+    out = g.limit(_obs(v=stop, msg=_msg(20000.0, stop, 10.0), stop=3000.0), Command(2e5))
+    assert out.force_n == pytest.approx(-540e3 * 0.585) and not out.emergency and g.interventions == 1
+    v = stop + 1.0
+    out = g.limit(_obs(v=v, msg=_msg(20000.0, v, 10.0), stop=3000.0), Command(2e5))
+    assert out.emergency and out.force_n == pytest.approx(F_EB)
 
 
 def test_the_plant_brakes_at_its_emergency_rate_after_its_build_up():

@@ -67,13 +67,24 @@ UNHEALTHY = [("stops_skipped", "scheduled stops skipped"), ("collisions", "colli
 
 def unhealthy_reasons(summary: dict, cut_short: bool = False) -> list[str]:
     """What made a run not healthy, as short phrases (empty: healthy).  ``cut_short``: the run was
-    stopped at a time the user chose, so trains still running then (not arrived, stops not yet
-    served) are not counted."""
+    stopped at a time the user chose, so trains still running then (not arrived) and the stops they
+    had not reached (``stops_not_reached``) are not counted (:func:`cut_short_note` says them); a stop
+    a train passed without serving is (``stops_skipped``)."""
     out = []
     if summary.get("trains_arrived") != summary.get("trains") and not cut_short:
-        out.append(f"{summary.get('trains_arrived')} of {summary.get('trains')} trains arrived")
-    out += [f"{summary[k]} {words}" for k, words in UNHEALTHY if summary.get(k) and not (cut_short and k == "stops_skipped")]
+        missed = f" ({summary['stops_not_reached']} stops not reached)" if summary.get("stops_not_reached") else ""
+        out.append(f"{summary.get('trains_arrived')} of {summary.get('trains')} trains arrived{missed}")
+    out += [f"{summary[k]} {words}" for k, words in UNHEALTHY if summary.get(k)]
     return out if out or cut_short or summary.get("healthy", True) else ["not healthy (see summary.json)"]
+
+
+def cut_short_note(summary: dict) -> str:
+    """The terminal line of a run ended by ``--end-time`` before every train arrived (empty when all
+    did): its summary is not healthy, for that reason alone unless another is given."""
+    if summary.get("trains_arrived") == summary.get("trains"):
+        return ""
+    return (f"run ended at --end-time with {summary.get('trains_arrived')} of {summary.get('trains')} trains arrived and "
+            f"{summary.get('stops_not_reached', 0)} stops not reached (not skipped): not healthy as a whole run")
 
 
 def run(cfg: RunConfig) -> None:
@@ -129,7 +140,10 @@ def run(cfg: RunConfig) -> None:
         out_console.print(f"convoy followers formed {s.get('followers_formed', 0)}/{len(driver.followers)}"
                           + (f" — not formed: {text} (vc_summary.json)" if loose else ""))
     out_console.print(f"wrote {out}")
-    reasons = unhealthy_reasons(s, cut_short=cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s)
+    cut_short = cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s
+    reasons = unhealthy_reasons(s, cut_short=cut_short)
+    if cut_short and cut_short_note(s):
+        out_console.print(cut_short_note(s))
     if reasons:
         until = f" (simulated until {format_clock(s['simulated_until_s'])})" if s.get("simulated_until_s") else ""
         raise NotClean(f"the run is not healthy: {', '.join(reasons)}{until}; results in {out}")
@@ -140,8 +154,9 @@ def run_cmd(cfg: RunConfig) -> None:
     """Run a timetable on a line under one regime; write trajectories, stop events and a summary.
 
     Exits 1 (results kept) when the run is not healthy: a train did not arrive or skipped a stop
-    (not counted for trains still running at --end-time), a collision, a gap below the safe
-    separation, overspeed, an overrun of the movement authority.
+    (trains still running at --end-time and the stops they had not reached, stops_not_reached,
+    are reported, not counted), a collision, a gap below the safe separation, overspeed, an overrun
+    of the movement authority.
     """
     run(cfg)
 

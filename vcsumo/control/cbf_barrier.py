@@ -37,6 +37,7 @@ import numpy as np
 from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
+from vcsumo.control.brake_build_up import BrakeBuildUp
 from vcsumo.control.proxies import V_EPS_MPS, BoxBounds, RobustProxies, RouteBounds, StopIntegral
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
@@ -371,45 +372,31 @@ class SeparationBarrier:
         self.d_m = model_safety_distance_m(model, config)
         self.dead_time_s = model.dead_time_s
         self.follower = RobustProxies(follower_box, profile)  # the follower's RUP for the one-step look-ahead (eq. 13)
-        fb = follower_box
-        self._lag_s = fb.traction_lag_s
-        self._jerk = fb.max_jerk_mps3 if math.isfinite(fb.max_jerk_mps3) and fb.max_jerk_mps3 > 0 else math.inf
-        self._actuated = fb.traction_lag_s > 0 or math.isfinite(self._jerk)
-        self._brake_g = brake_range(follower, a, a.relative_braking)[0]  # brake force per mass the follower is sure of
-        self._m_low, self._m_high, self._rho = fb.mass_low_kg, fb.mass_high_kg, fb.rotating_mass_factor
-        self._traction_full_n = fb.mass_high_kg * fb.accel_high_mps2
-        self._descent = G * max(0.0, -float(np.min(rule.follower.g_low))) / fb.rotating_mass_factor
+        self.build_up = BrakeBuildUp(follower, a)  # the follower's build-up: the separation guard's, one piece of code
+        self._descent = max(0.0, -float(np.min(rule.follower.g_low)))  # the steepest descent of the route (rise/run)
         self.follower_delay_full_s = self.actuation_time(None)
 
     # ---- the follower's dead time ----------------------------------------------------------
     def actuation_time(self, force_n: float | None) -> float:
         """Equivalent dead time of the follower's force lag and jerk limit from the applied force
-        ``force_n`` (None: full traction, or the configuration's ``actuation_delay_s``) to its
-        guaranteed emergency brake, s (the configuration's ``actuation_delay_s`` if given).
-
-        A jerk-limited ramp of duration R = (F/M + a_g)/j brakes, at every moment, at least as much
-        as holding F for R/2 and then the full brake; a first-order lag τ at least as much as holding
-        it for τ (so the two together: τ + R/2, the jerk limit binding first and the lag's tail
-        within τ).  0 for a train without lag and jerk limit, or once the brake is applied."""
+        ``force_n`` (None: full traction) to its guaranteed emergency brake, s: the configuration's
+        ``actuation_delay_s`` if given, else the build-up's
+        (:meth:`vcsumo.control.brake_build_up.BrakeBuildUp.actuation_time`: τ + (F/M + a_g)/(2j), 0 for
+        a train without lag and jerk limit, or once the brake is applied)."""
         if self.cfg.actuation_delay_s is not None:
             return self.cfg.actuation_delay_s
-        if not self._actuated:
-            return 0.0
-        f = self._traction_full_n if force_n is None else force_n
-        per_mass = f / (self._m_low if f > 0.0 else self._m_high) + self._brake_g
-        if per_mass <= 1e-9:
-            return 0.0
-        return self._lag_s + (0.5 * per_mass / self._jerk if math.isfinite(self._jerk) else 0.0)
+        return self.build_up.actuation_time(force_n)
 
     def follower_dead(self, v_f: float, force_n: float | None, dt_s: float = 0.0) -> tuple[float, float]:
         """(speed held, dead time) of the follower before its guaranteed braking: the set's dead time
         plus :meth:`actuation_time`, at the speed it may reach meanwhile under its applied force and
-        the steepest descent; ``dt_s`` adds the explicit-Euler overshoot of a Δt-sampled braking (Δt/2)."""
+        the steepest descent of its route (:meth:`~vcsumo.control.brake_build_up.BrakeBuildUp.hold_accel`);
+        ``dt_s`` adds the explicit-Euler overshoot of a Δt-sampled braking (Δt/2)."""
         t_act = self.actuation_time(force_n)
         v = v_f
         if t_act > 0.0:
-            f = self._traction_full_n if force_n is None else max(force_n, 0.0)
-            v = v_f + (f / (self._rho * self._m_low) + self._descent) * t_act
+            f = self.build_up.full_traction_n if force_n is None else force_n
+            v = v_f + self.build_up.hold_accel(f, self._descent) * t_act
         return v, self.dead_time_s + t_act + 0.5 * dt_s
 
     def new_step(self) -> None:

@@ -348,15 +348,16 @@ class JerkLimitedTransition:
 class SeparationGap:
     """The certified spacing as a gap reference: the front-to-rear gap the separation model's
     relative-braking rule needs (:class:`vcsumo.signalling.separation.RelativeBraking`, on the
-    follower's route when it is known) for both trains at the follower's speed, with the dead time,
+    follower's route when it is known) at the follower's speed, the predecessor at its reported speed
+    when that is lower (else at the follower's: the coupled spacing), with the dead time,
     the assumption set's message-age bound and ``extra_delay_s`` (e.g. 1.5 loop steps), plus the
     follower's brake build-up from the force that holds its speed there (the separation guard's
-    :class:`~vcsumo.control.guard.BrakeBuildUp`: its equivalent dead time, and the speed it may gain
+    :class:`~vcsumo.control.brake_build_up.BrakeBuildUp`: its equivalent dead time, and the speed it may gain
     meanwhile), plus ``buffer_m`` — so a controller tracking it stays just outside what the guard
     enforces."""
 
     def __init__(self, model, follower, leader, profile=None, extra_delay_s: float = 0.0, buffer_m: float = 10.0):
-        from vcsumo.control.guard import BrakeBuildUp
+        from vcsumo.control.brake_build_up import BrakeBuildUp
         from vcsumo.signalling.separation import RelativeBraking
 
         self.model = model
@@ -371,7 +372,7 @@ class SeparationGap:
     def build_up_at(self, speed_mps: float, position_m: float | None = None) -> tuple[float, float]:
         """(speed held, equivalent dead time) of the follower's brake build-up from the force that
         holds ``speed_mps`` (its running resistance and the gradient where it is; level track
-        without a position), m/s and s (:meth:`~vcsumo.control.guard.BrakeBuildUp.held`)."""
+        without a position), m/s and s (:meth:`~vcsumo.control.brake_build_up.BrakeBuildUp.held`)."""
         from vcsumo.dynamics import gradient_force, running_resistance
 
         p = self.params
@@ -382,16 +383,20 @@ class SeparationGap:
         return self.build_up.held(self.rule.follower if on_route else None, position_m or 0.0, speed_mps, force)
 
     def gap_m(self, speed_mps: float, predecessor_speed_mps: float | None = None, position_m: float | None = None) -> float:
+        """The spacing at the follower's speed with the predecessor at ``predecessor_speed_mps`` when it is
+        slower (a braking predecessor needs more room: the rule the guard keeps), else at the follower's
+        speed (None: the same speed), m."""
         from vcsumo.signalling.separation import relative_braking_gap
 
         v = max(speed_mps, 0.0)
+        v_l = v if predecessor_speed_mps is None or not math.isfinite(predecessor_speed_mps) else min(v, max(predecessor_speed_mps, 0.0))
         v_dead, t_act = self.build_up_at(v, position_m)
-        a_f, a_l = self.model.vc_decels(self.follower, self.leader, v, v)
-        level = self.model.margin_m + relative_braking_gap(v_dead, v, a_f, a_l, self.delay_s + t_act)
+        a_f, a_l = self.model.vc_decels(self.follower, self.leader, v, v_l)
+        level = self.model.margin_m + relative_braking_gap(v_dead, v_l, a_f, a_l, self.delay_s + t_act)
         if self.rule is None or position_m is None:
             return level + self.buffer_m
         s_l = position_m + level + self.leader.length_m
-        return self.rule.required_gap(position_m, v_dead, s_l, v, self.delay_s + t_act) + self.buffer_m
+        return self.rule.required_gap(position_m, v_dead, s_l, v_l, self.delay_s + t_act) + self.buffer_m
 
     def evaluate(self, time_s: float, position_m: float, speed_mps: float, predecessor_speed_mps: float) -> GapSample:
         return GapSample(self.gap_m(speed_mps, predecessor_speed_mps, position_m))

@@ -39,11 +39,18 @@ still rises while its brake builds up); with the build-up added, the test's stop
 not move forward along an emergency braking (the equivalent dead time shrinks as the force falls),
 and the monitor's rule — the same with less dead time, at a lower speed — is kept.
 
-**Line** (:meth:`SeparationGuard.line_speed`): approaching its own stop
-(``Observation.next_stop_m``) the follower keeps to its guaranteed service-brake curve to the stop
-point, and everywhere to the line's permitted speed: the limit under the whole train and the
-guaranteed service-brake curve to every lower limit ahead (the same curves the supervision gives
-the trains SUMO drives), on the one-step speed of eq. 1b.
+**Line** (:class:`NextStepLine`): the limit under the whole train (on speed: back to it in one step,
+on the service brake within the set's speed tolerance above it), and the guaranteed service-brake
+curves (:class:`RouteBraking`, the same curves the supervision gives the trains SUMO drives) to the
+follower's own stop (``Observation.next_stop_m``) and to every lower limit ahead — tested like the
+separation, from the same state one step ahead (:class:`NextStep`): the force one step ahead, the
+build-up from it to the service brake with its traction held on the steepest descent on the way,
+half a step; no reaction time (the train knows its stops and limits).  When the command fails the
+curves the guard commands the largest force that keeps them, down to the full service brake
+(:meth:`BrakeBuildUp.service_command_n`, M̄·b: any train of the box then brakes at the curves'
+guaranteed rate per mass — not an emergency); a train above them already gets the full service
+brake, and the emergency brake only above the curves of a brake already applied
+(:meth:`SeparationGuard.line_speed`, 1.5 steps of dead time).
 
 By default the guard trusts only what the channel delivered (:class:`GuardConfig` ``sensor``: an
 on-board sensor of the train ahead — SUMO's exact gap and speed within its look-ahead, no error
@@ -53,19 +60,20 @@ model — may be switched on explicitly).
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
 from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
 from vcsumo.control.base import Command, Observation
-from vcsumo.dynamics import acceleration, brake_force_limit, gradient_force, running_resistance
+from vcsumo.control.brake_build_up import BrakeBuildUp
+from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
-from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, leader_worst_state
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, leader_worst_state
 from vcsumo.units import G
 
 
@@ -108,126 +116,55 @@ def predecessor_estimate(obs: Observation, predecessor_length_m: float, sensor: 
 
 
 # -------------------------------------------------------------------------------------------
-# The follower's brake build-up
-
-
-class BrakeBuildUp:
-    """How long a train takes from the force it applies to its guaranteed brake, and its force
-    one step ahead — bounded over its uncertainty box (mass, Davis A, brakes).
-
-    :meth:`actuation_time` is the equivalent dead time of the force lag τ and the jerk limit j from
-    the applied force F to the guaranteed brake of the relative-braking rule (the assumption set's
-    ``relative_braking`` kind at the bottom of its range, b per mass): τ + (F/M + b)/(2j), with M̲
-    for a traction force and M̄ for a brake force, 0 once F ≤ −b·M̄ — the CBF's
-    (:meth:`vcsumo.control.cbf_barrier.SeparationBarrier.actuation_time`): a jerk-limited ramp of
-    duration R brakes at every moment at least as much as holding F for R/2 and then braking fully,
-    a first-order lag τ at least as much as holding F for τ.  From full traction that is the longest
-    (ETR1000: 0.5 + (0.94 + 1.08)/1.4 ≈ 1.94 s), from coasting less (≈ 1.27 s).
-
-    :meth:`next_force` is the largest force the plant can apply one step after a command: a rising
-    force at most the command (a plant without lag — SUMO's, driven by speed commands — applies it at
-    once); a falling one no lower than the eq. 1c lag (Euler step min(1, Δt/τ)) and the eq. 4c jerk
-    limit j·M̲·Δt allow (the plant's service envelope never asks less braking than a command above
-    the guaranteed service force, its emergency brake at least M̲ times the bottom of the emergency
-    range); :meth:`command_for` inverts the lag.
-    """
-
-    def __init__(self, stock: RollingStock, assumptions: AssumptionSet):
-        p = stock.params()
-        box = stock.uncertainty_box()
-        self.lag_s = max(float(p.traction_lag_s), 0.0)
-        self.jerk_mps3 = float(p.max_jerk_mps3) if math.isfinite(p.max_jerk_mps3) and p.max_jerk_mps3 > 0 else math.inf
-        self.m_low, self.m_high = box.mass_kg.low, box.mass_kg.high
-        self.rho = p.rotating_mass_factor
-        self.davis_a_low_n = box.davis_a_n.low
-        self.brake_mps2 = brake_range(stock, assumptions, assumptions.relative_braking)[0]
-        """The guaranteed brake of the relative-braking rule, force per mass (bottom of its range), m/s²."""
-        self.emergency_low_n = self.m_low * brake_range(stock, assumptions, "emergency")[0]
-        bp = box.max_brake_power_w.low if box.max_brake_power_w is not None else p.max_brake_power_w
-        self.service_low = p.with_(mass_kg=self.m_low, service_brake_decel_mps2=brake_range(stock, assumptions, "service")[0], max_brake_power_w=bp)
-        """The train with its guaranteed service-brake force (the bottom of mass, rate and power)."""
-        self.full_traction_n = self.m_high * box.max_accel_mps2.high
-        self._routes: dict[int, tuple] = {}
-
-    def actuation_time(self, force_n: float | None) -> float:
-        """Equivalent dead time from the applied force ``force_n`` (None: full traction) to the
-        guaranteed brake, s (0 for a train without lag and jerk limit, or once the brake is applied)."""
-        if self.lag_s <= 0.0 and math.isinf(self.jerk_mps3):
-            return 0.0
-        f = self.full_traction_n if force_n is None else float(force_n)
-        per_mass = f / (self.m_low if f > 0.0 else self.m_high) + self.brake_mps2
-        if per_mass <= 1e-9:
-            return 0.0
-        return self.lag_s + (0.5 * per_mass / self.jerk_mps3 if math.isfinite(self.jerk_mps3) else 0.0)
-
-    def hold_accel(self, force_n: float, descent: float) -> float:
-        """The largest acceleration while the force ``force_n`` (its traction part) is held, on a
-        descent of ``descent`` (rise/run ≥ 0), without resistance, m/s²."""
-        return max(force_n, 0.0) / (self.rho * self.m_low) + G * max(descent, 0.0) / self.rho
-
-    def held(self, braking: RouteBraking | None, s_m: float, v_mps: float, force_n: float) -> tuple[float, float]:
-        """(speed, dead time) of the build-up from ``force_n`` applied at (s, v): the equivalent dead
-        time :meth:`actuation_time` and the speed reached by its end with the force's traction part
-        held, on the steepest descent under the train over the distance it runs meanwhile
-        (``braking``: the train's guaranteed braking on its route, :class:`RouteBraking`; None: level
-        track), m/s and s."""
-        t_act = self.actuation_time(force_n)
-        if t_act <= 0.0:
-            return v_mps, 0.0
-        if braking is None:
-            return v_mps + self.hold_accel(force_n, 0.0) * t_act, t_act
-        route = self._routes.get(id(braking))
-        if route is None or route[0] is not braking:  # the braking's edges, lowest gradients and steepest descent, once
-            route = self._routes[id(braking)] = (braking, braking.x, braking.g_low, max(0.0, -float(np.min(braking.g_low))))
-        _, x, g, descent_all = route
-        reach = v_mps * t_act + 0.5 * self.hold_accel(force_n, descent_all) * t_act * t_act
-        n = len(g) - 1
-        i0 = min(max(int(np.searchsorted(x, s_m, side="right")) - 1, 0), n)
-        i1 = min(max(int(np.searchsorted(x, s_m + reach, side="right")) - 1, i0), n)
-        low = float(g[i0]) if i1 == i0 else float(g[i0: i1 + 1].min())
-        return v_mps + self.hold_accel(force_n, max(0.0, -low)) * t_act, t_act
-
-    def service_force_n(self, v_mps: float) -> float:
-        """The service-brake force the train is sure to have at speed v, N (positive)."""
-        return float(brake_force_limit(self.service_low, max(v_mps, 0.0)))
-
-    def lag_alpha(self, dt: float) -> float:
-        return min(1.0, dt / self.lag_s) if self.lag_s > 0.0 else 1.0
-
-    def next_force(self, force_n: float, command_n: float, dt: float, emergency: bool, v_mps: float) -> float:
-        """The largest force the plant applies one step after ``command_n`` from ``force_n``, N."""
-        target = -self.emergency_low_n if emergency else max(command_n, -self.service_force_n(v_mps))
-        if target >= force_n:  # a rising force: at most the command (a plant without lag applies it at once: SUMO's)
-            return target
-        f = force_n + self.lag_alpha(dt) * (target - force_n)
-        if math.isfinite(self.jerk_mps3):
-            f = max(f, force_n - self.jerk_mps3 * self.m_low * dt)
-        return f
-
-    def command_for(self, force_n: float, next_force_n: float, dt: float) -> float:
-        """The command whose force one step later is at most ``next_force_n`` (:meth:`next_force`
-        inverted: a falling force through the lag, a rising one the force itself), N."""
-        if next_force_n >= force_n:
-            return next_force_n
-        return force_n + (next_force_n - force_n) / self.lag_alpha(dt)
-
-
-# -------------------------------------------------------------------------------------------
 # The filter stage
+
+
+def largest_fitting(fits, lo: float, hi: float) -> float:
+    """The largest force in [lo, hi] that passes ``fits`` (monotone: a lower force passes when a higher
+    one does), given that ``lo`` passes, to 1/1000 of the interval (it keeps the side that passes), N."""
+    tol = 1e-3 * (hi - lo)
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid)
+    return lo
+
+
+class NextStep:
+    """The follower one step from now under the force its plant applies then — the state both tests
+    of the guard (separation and line) start from: the position after the step (explicit Euler, eq. 6b:
+    it advances with the present speed), the speed it may reach in the step (no resistance beyond
+    Davis A̲, the lightest mass under traction), and the brake build-up from that force
+    (:meth:`BrakeBuildUp.held`: its equivalent dead time and the speed gained meanwhile)."""
+
+    def __init__(self, build: BrakeBuildUp, obs: Observation, braking: RouteBraking):
+        self.build = build
+        self.braking = braking
+        self.dt = obs.step_s
+        self.s, self.v = obs.ego.position_m, obs.ego.speed_mps
+        self.s1 = self.s + self.v * self.dt
+        self.grade = obs.profile.mean_gradient(self.s, obs.params.length_m)
+
+    def state(self, next_force_n: float, brake_mps2: float | None = None) -> tuple[float, float, float]:
+        """(speed at the end of the build-up, its equivalent dead time, the speed one step ahead) when the
+        plant applies ``next_force_n`` one step from now, building up to the brake ``brake_mps2`` (None:
+        the relative-braking rule's), m/s, s, m/s."""
+        b = self.build
+        net = next_force_n - b.davis_a_low_n
+        a1 = net / (b.rho * (b.m_low if net > 0.0 else b.m_high)) - G * self.grade / b.rho
+        v1 = max(0.0, self.v + self.dt * a1)
+        v_dead, t_act = b.held(self.braking, self.s1, v1, next_force_n, brake_mps2)
+        return v_dead, t_act, v1
 
 
 class NextStepSeparation:
     """The guard's separation test at one step: does a force applied one step from now keep the
     relative-braking rule after the brake build-up from that force?  (See the module doc.)"""
 
-    def __init__(self, guard: "SeparationGuard", obs: Observation, pred: PredecessorEstimate):
+    def __init__(self, guard: "SeparationGuard", obs: Observation, pred: PredecessorEstimate, step: NextStep | None = None):
         self.rule, _ = guard._rule(obs.profile)
-        self.build = guard.build_up
+        self.step = step if step is not None else NextStep(guard.build_up, obs, self.rule.follower)
         self.dt = obs.step_s
-        p = obs.params
-        s, self.v = obs.ego.position_m, obs.ego.speed_mps
-        self.s1 = s + self.v * self.dt  # explicit Euler (eq. 6b): the position advances with the present speed
-        self.grade = obs.profile.mean_gradient(s, p.length_m)
+        s, self.v, self.s1 = self.step.s, self.step.v, self.step.s1
         self.dead_s = guard.model.dead_time_s + 0.5 * self.dt  # + the Euler overshoot of a Δt-sampled braking
         if pred.source == "none":  # nothing known: the predecessor may stand at the follower's front
             self.s_l, self.v_l, self.room = s, 0.0, -math.inf
@@ -241,13 +178,8 @@ class NextStepSeparation:
     def state(self, next_force_n: float) -> tuple[float, float, float]:
         """(speed, dead time, the follower's speed one step ahead) of the rule's follower when the
         plant applies ``next_force_n`` one step from now: the set's dead time + the build-up from
-        that force (:meth:`BrakeBuildUp.held`) + half a step, at the speed it may reach by then (no
-        resistance beyond Davis A̲)."""
-        b = self.build
-        net = next_force_n - b.davis_a_low_n
-        a1 = net / (b.rho * (b.m_low if net > 0.0 else b.m_high)) - G * self.grade / b.rho
-        v1 = max(0.0, self.v + self.dt * a1)
-        v_dead, t_act = b.held(self.rule.follower, self.s1, v1, next_force_n)
+        that force (:class:`NextStep`) + half a step, at the speed it may reach by then."""
+        v_dead, t_act, v1 = self.step.state(next_force_n)
         return v_dead, self.dead_s + t_act, v1
 
     def closing(self, next_force_n: float) -> float:
@@ -257,6 +189,50 @@ class NextStepSeparation:
 
     def fits(self, next_force_n: float) -> bool:
         return self.room >= 0.0 and self.closing(next_force_n) <= self.room
+
+
+class NextStepLine:
+    """The guard's line test at one step: does a force applied one step from now keep the follower on
+    or below its guaranteed service-brake curves — to its own stop and to every lower limit ahead —
+    after the build-up from that force to its service brake?  The same state as the separation test
+    (:class:`NextStep`: the force one step ahead, the build-up with its traction held on the steepest
+    descent on the way) with half a step for the Euler overshoot; no reaction time (the train knows
+    its stops and limits in advance).  The curves integrate the guaranteed service brake over the
+    route's gradients (:class:`RouteBraking`, as the supervision of the trains SUMO drives)."""
+
+    def __init__(self, guard: "SeparationGuard", obs: Observation, step: NextStep):
+        self.service = guard._rule(obs.profile)[1]
+        self.step = step
+        self.brake = step.build.service_mps2
+        self.half_s = 0.5 * step.dt
+        s = step.s
+        self.targets = []
+        targets, positions = guard._restrictions(obs.profile)
+        i = bisect_right(positions, s)
+        stop = obs.next_stop_m if obs.next_stop_m is not None and obs.next_stop_m > s else math.inf
+        nearest = min(positions[i] if i < len(positions) else math.inf, stop)
+        if not math.isfinite(nearest):
+            return
+        # a cheap bound first (the top speed it may reach from full traction on the route's steepest descent)
+        t_full, a_hold = guard._hold_bound(obs.profile)
+        v_hi = step.v + a_hold * (step.dt + t_full)
+        if nearest - s > self.service.stopping_bound(v_hi, t_full + self.half_s) + (step.s1 - s) + 50.0:
+            return
+        v_top, t_top, _ = step.state(step.build.full_traction_n, self.brake)  # the farthest it may run before it stands
+        reach = self.service.stopping_distance(step.s1, v_top, t_top + self.half_s) + (step.s1 - s) + 50.0
+        for s_t, v_t in targets[i:]:
+            if s_t - s > reach:
+                break
+            self.targets.append((s_t, v_t))
+        if stop - s <= reach:
+            self.targets.append((stop, 0.0))
+
+    def fits(self, next_force_n: float) -> bool:
+        if not self.targets:
+            return True
+        v_dead, t_act, _ = self.step.state(next_force_n, self.brake)
+        dead, s1 = t_act + self.half_s, self.step.s1
+        return all(v_dead <= self.service.permitted_speed(s1, s_t, v_t, dead, v_dead) + 1e-9 for s_t, v_t in self.targets)
 
 
 class SeparationGuard:
@@ -286,7 +262,8 @@ class SeparationGuard:
         self.last_speed_mps = math.nan
         self.last_force_in_n = math.nan
         self._rules: dict[int, tuple] = {}
-        self._targets: dict[int, list] = {}
+        self._targets: dict[int, tuple] = {}
+        self._bounds: dict[int, tuple[float, float]] = {}
 
     def _rule(self, profile: RouteProfile) -> tuple[RelativeBraking, RouteBraking]:
         r = self._rules.get(id(profile))
@@ -301,10 +278,43 @@ class SeparationGuard:
             pred = predecessor_estimate(obs, self.predecessor_params.length_m, self.cfg.sensor)
         return NextStepSeparation(self, obs, pred)
 
+    def _restrictions(self, profile: RouteProfile) -> tuple[list[tuple[float, float]], list[float]]:
+        """(position, speed) of every lower limit of the route, sorted, and their positions (once per route)."""
+        targets = self._targets.get(id(profile))
+        if targets is None:
+            lows = profile.restriction_targets()
+            self._targets = {id(profile): (lows, [p for p, _ in lows])}
+            targets = self._targets[id(profile)]
+        return targets
+
+    def _hold_bound(self, profile: RouteProfile) -> tuple[float, float]:
+        """(the build-up from full traction to the service brake, s; the acceleration full traction
+        may give meanwhile on the route's steepest descent, m/s²) — bounds of :class:`NextStep` (once per route)."""
+        b = self._bounds.get(id(profile))
+        if b is None:
+            service = self._rule(profile)[1]
+            b = self.build_up.actuation_time(None, self.build_up.service_mps2), self.build_up.hold_accel(self.build_up.full_traction_n, max(0.0, -float(min(service.g_low))))
+            self._bounds = {id(profile): b}
+        return b
+
+    def line(self, obs: Observation, step: NextStep | None = None) -> NextStepLine:
+        """The step's line test: the service-brake curves to its stop and the lower limits ahead after
+        the build-up from the force one step ahead."""
+        return NextStepLine(self, obs, step if step is not None else NextStep(self.build_up, obs, self._rule(obs.profile)[0].follower))
+
+    def present_limit(self, obs: Observation) -> float:
+        """The limit under the whole train now and the train's top speed (0 once its front is at or past
+        its own stop), m/s."""
+        s = obs.ego.position_m
+        if obs.next_stop_m is not None and obs.next_stop_m <= s:
+            return 0.0
+        return min(obs.profile.speed_limit_train(s, self.follower.length_m), self.follower.max_speed_ms)
+
     def line_speed(self, obs: Observation, v_cap_mps: float = math.inf) -> float:
-        """The speed the line allows for the next step, m/s (at most ``v_cap_mps``): approaching its own
-        stop (``Observation.next_stop_m``) the guaranteed service-brake curve to it, and everywhere
-        :meth:`limit_speed`."""
+        """The speed the line allows for the next step to a train whose brake is applied already (no
+        build-up), m/s (at most ``v_cap_mps``): approaching its own stop (``Observation.next_stop_m``)
+        the guaranteed service-brake curve to it, and everywhere :meth:`limit_speed`.  The guard keeps
+        the curves with the build-up (:class:`NextStepLine`); above these it calls the emergency brake."""
         _, service = self._rule(obs.profile)
         s, dt = obs.ego.position_m, obs.step_s
         v = v_cap_mps
@@ -313,16 +323,13 @@ class SeparationGuard:
         return min(v, self.limit_speed(obs, service))
 
     def limit_speed(self, obs: Observation, service: RouteBraking) -> float:
-        """The permitted speed of the line: the limit under the whole train now, and the guaranteed
-        service-brake curve to every lower limit ahead (as the supervision of SUMO-driven trains), m/s."""
+        """The permitted speed of the line to a train whose brake is applied already: the limit under
+        the whole train now, and the guaranteed service-brake curve (1.5 steps of dead time) to every
+        lower limit ahead (as the supervision of SUMO-driven trains), m/s."""
         prof, s, v, dt = obs.profile, obs.ego.position_m, obs.ego.speed_mps, obs.step_s
         v_perm = min(prof.speed_limit_train(s, self.follower.length_m), self.follower.max_speed_ms)
-        targets = self._targets.get(id(prof))
-        if targets is None:
-            targets = self._targets = {id(prof): prof.restriction_targets()}
-            targets = self._targets[id(prof)]
         reach = service.stopping_distance(s, v, 2.0 * dt) + 50.0
-        for s_t, v_t in targets:
+        for s_t, v_t in self._restrictions(prof)[0]:
             if s_t <= s:
                 continue
             if s_t - s > reach:
@@ -341,35 +348,52 @@ class SeparationGuard:
         v_floor = max(0.0, v + dt * float(acceleration(p, v, f_eb, grad, tf)))
         v_cmd = max(v_floor, v + dt * float(acceleration(p, v, force, grad, tf)))
         self.last_force_in_n = force_in
-        # 1. the line: its limits and the follower's own stop (braking curves on speed)
-        v_line = self.line_speed(obs, v_cmd + 1e-6)
-        if v_cmd > v_line + 1e-9:
-            force = max(min(self._force_for(p, v, max(v_line, v_floor), dt, grad, tf), force), f_eb)
-        # 2. the separation: the force one step ahead keeps the relative-braking rule after its build-up
         build, f0 = self.build_up, float(obs.ego.force_n)
-        sep = self.separation(obs)
-        emergency = cmd.emergency or force < -build.service_force_n(v) - 1e-6
+        service = -build.service_force_n(v)
+        step = NextStep(build, obs, self._rule(prof)[0].follower)
+        # 1. the line: the limit under the train (on speed), then the service-brake curves to the
+        # follower's own stop and every lower limit ahead, after the build-up from the force one step ahead
+        # (a command beyond the service force the train is sure of is an emergency command, except the
+        # full service command of the line: beyond it, the emergency brake)
+        full, beyond = -build.service_command_n(v), service
+        v_here = self.present_limit(obs)
+        if v_cmd > v_here + 1e-9:  # back to the limit in one step; within the set's speed tolerance on the service brake
+            f_here = self._force_for(p, v, max(v_here, v_floor), dt, grad, tf)
+            if v <= v_here + self.model.assumptions.speed_tolerance_kmh / 3.6:
+                f_here, beyond = max(f_here, full), full
+            force = max(min(f_here, force), f_eb)
+        line = self.line(obs, step)
+        hi = build.next_force(f0, force, dt, cmd.emergency or force < beyond - 1e-6, v)
+        if not line.fits(hi):
+            floor = build.next_force(f0, full, dt, False, v)
+            if line.fits(floor):  # the largest force one step ahead on the curves, and the command that gives it
+                u = build.command_for(f0, largest_fitting(line.fits, floor, hi), dt)
+                if u <= service + 1e-6:  # as much as the service brake the train is sure of: the full service brake
+                    u, beyond = full, full
+                force = max(min(u, force), f_eb)
+            else:  # above its curves already: the full service brake, and the emergency brake above the curves of a brake applied
+                v_line = self.line_speed(obs, v_cmd + 1e-6)
+                force, beyond = max(min(full, self._force_for(p, v, max(v_line, v_floor), dt, grad, tf), force), f_eb), full
+        # 2. the separation: the force one step ahead keeps the relative-braking rule after its build-up
+        sep = NextStepSeparation(self, obs, predecessor_estimate(obs, self.predecessor_params.length_m, self.cfg.sensor), step)
+        emergency = cmd.emergency or force < beyond - 1e-6
         if not sep.fits(build.next_force(f0, force, dt, emergency, v)):
             floor = build.next_force(f0, f_eb, dt, True, v)
             if sep.fits(floor):  # the largest force one step ahead that fits, and the command that gives it
-                lo, hi = floor, build.next_force(f0, force, dt, emergency, v)
-                tol = 1e-3 * (hi - lo)  # the search's resolution (it keeps the side that passes)
-                while hi - lo > tol:
-                    mid = 0.5 * (lo + hi)
-                    lo, hi = (mid, hi) if sep.fits(mid) else (lo, mid)
+                lo = largest_fitting(sep.fits, floor, build.next_force(f0, force, dt, emergency, v))
                 u = build.command_for(f0, lo, dt)
-                service = -build.service_force_n(v)
                 if u < service and build.next_force(f0, service, dt, False, v) <= lo:
                     u = service  # the service brake gets there too (the jerk limit binds): no emergency brake
-                force = max(min(u, force), f_eb)
+                if u < force:
+                    force, beyond = max(u, f_eb), service
             else:  # outside the rule already: brake as hard as the train can, to a stand (and hold it there)
-                force = max(min(self._force_for(p, v, v_floor, dt, grad, tf), force), f_eb)
+                force, beyond = max(min(self._force_for(p, v, v_floor, dt, grad, tf), force), f_eb), service
         if force >= force_in - 1e-9:
             self.last_speed_mps = v_cmd
             return cmd if force_in >= f_eb else replace(cmd, force_n=f_eb)
         self.interventions += 1
         self.last_speed_mps = v_out = max(v_floor, v + dt * float(acceleration(p, v, force, grad, tf)))
-        emergency = cmd.emergency or force < -build.service_force_n(v) - 1e-6
+        emergency = cmd.emergency or force < beyond - 1e-6
         return replace(cmd, force_n=force, emergency=emergency, info={**cmd.info, "guard_speed_mps": v_out})
 
     @staticmethod
@@ -378,4 +402,5 @@ class SeparationGuard:
         return p.mass_kg * p.rotating_mass_factor * (v_target - v) / dt + float(running_resistance(p, v, tf)) + float(gradient_force(p, grad))
 
 
-__all__ = ["GuardConfig", "load_guard", "PredecessorEstimate", "predecessor_estimate", "BrakeBuildUp", "NextStepSeparation", "SeparationGuard"]
+__all__ = ["GuardConfig", "load_guard", "PredecessorEstimate", "predecessor_estimate", "BrakeBuildUp", "largest_fitting", "NextStep", "NextStepSeparation",
+           "NextStepLine", "SeparationGuard"]

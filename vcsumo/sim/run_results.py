@@ -19,6 +19,9 @@ from vcsumo.sim.sumo_io import read_sumo_log
 TRAJECTORY_COLUMNS = ["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"]
 """Columns of trajectories.csv (one row per running train and record period)."""
 TRAJECTORY_FLOATS = ["time_s", "km", "s_m", "speed_mps", "accel_mps2", "gap_m"]
+STOP_PASSED_M = 10.0
+"""A front more than this beyond a stop's position has passed the stop (an unserved stop it passed is
+skipped; one still ahead of a train that had not arrived when the run ended was not reached), m."""
 
 
 @dataclass
@@ -55,6 +58,19 @@ def parse_xml_rows(path: Path, tag: str) -> list[dict]:
         raise SumoError(f"{path}: SUMO output is not valid XML ({exc})") from None
 
 
+def stop_counts(stops: list, served, arrived: bool, front_m: float) -> dict:
+    """A train's scheduled stops (:class:`~vcsumo.timetable.PlannedStop`, the final one included) as
+    ``stops_scheduled``, ``stops_served`` (``served(platform)``), ``stops_skipped`` (not served, and
+    passed: the train arrived, or its front at the end of the run ``front_m`` lay more than
+    :data:`STOP_PASSED_M` beyond the stop) and ``stops_not_reached`` (not served and still ahead of a
+    train that had not arrived when the run ended — e.g. cut short by ``--end-time``; ``front_m`` NaN:
+    it never departed), counts."""
+    unserved = [x for x in stops if not served(x.platform)]
+    passed = [x for x in unserved if arrived or (math.isfinite(front_m) and front_m > x.s_m + STOP_PASSED_M)]
+    return {"stops_scheduled": len(stops), "stops_served": len(stops) - len(unserved), "stops_skipped": len(passed),
+            "stops_not_reached": len(unserved) - len(passed)}
+
+
 def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_file: Path | None, pass_rows: list[tuple], collisions: list, teleports: list,
                     sim_end: float, wall: float, extra: dict | None = None) -> SimulationResult:
     """The run's tables from the loop's records and SUMO's outputs in ``out``: stop events
@@ -83,7 +99,7 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         })
     stops = pd.DataFrame(stop_rows, columns=["train", "station", "platform", "arrival_s", "departure_s", "dwell_s", "scheduled_arrival_s", "scheduled_departure_s", "arrival_delay_s", "departure_delay_s"])
     trip = {r["id"]: r for r in parse_xml_rows(out / "tripinfo.xml", "tripinfo")}
-    scheduled = {t.id: [x.platform for x in t.stops] + ([t.final_stop.platform] if t.final_stop is not None else []) for t in scn.trains}
+    scheduled = {t.id: list(t.stops) + ([t.final_stop] if t.final_stop is not None else []) for t in scn.trains}
     served = stops.groupby(["train", "platform"]).size().to_dict() if len(stops) else {}
     warnings = read_sumo_log(out / "sumo_errors.log")
     rows = []
@@ -106,14 +122,13 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
             "route_length_m": float(ti["routeLength"]) if ti else math.nan,
             "time_loss_s": float(ti["timeLoss"]) if ti else math.nan,
             "min_gap_m": (tr.min_gap if tr and not math.isinf(tr.min_gap) else None),
-            "stops_scheduled": len(scheduled[t.id]), "stops_served": sum(1 for pl in scheduled[t.id] if served.get((t.id, pl), 0)),
+            **stop_counts(scheduled[t.id], lambda pl, tid=t.id: served.get((tid, pl), 0) > 0, bool(ti) and not math.isnan(arrival), tr.s if tr else math.nan),
             **health.train_row(t.id),
             "gap_violations": health.trains[t.id].separation_violations,
             "emergency_brakes": tr.emergencies if tr else 0,
             "arrived": bool(ti) and not math.isnan(arrival),
         })
     trains_df = pd.DataFrame(rows)
-    trains_df["stops_skipped"] = trains_df["stops_scheduled"] - trains_df["stops_served"]
     gaps = [tr.min_gap for tr in state.values() if not math.isinf(tr.min_gap)]
     margins = trains_df["min_margin_m"].dropna()
     summary = {
@@ -125,7 +140,7 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         "below_separation_time_s": round(float(trains_df["below_separation_time_s"].sum()), 2),
         "collisions": len(collisions), "max_impact_kmh": float(trains_df["max_impact_kmh"].max()) if len(trains_df) else 0.0,
         "stops_scheduled": int(trains_df["stops_scheduled"].sum()), "stops_served": int(trains_df["stops_served"].sum()),
-        "stops_skipped": int(trains_df["stops_skipped"].sum()),
+        "stops_skipped": int(trains_df["stops_skipped"].sum()), "stops_not_reached": int(trains_df["stops_not_reached"].sum()),
         "overspeed_events": int(trains_df["overspeed_events"].sum()), "overspeed_max_kmh": float(trains_df["overspeed_max_kmh"].max()) if len(trains_df) else 0.0,
         "beyond_service_brakings": int(trains_df["beyond_service_brakings"].sum()),
         "max_decel_mps2": float(trains_df["max_decel_mps2"].max()) if len(trains_df) else 0.0,
