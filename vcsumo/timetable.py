@@ -250,6 +250,15 @@ def _route(topo: Topology, starts: list[str], legs: list[list[str]]) -> list[str
     return route
 
 
+def _stock_spec(train: str, timetable_path: Path) -> str | Path:
+    """A service's rolling stock: a shipped name, or a file path; a relative path is taken next to the
+    timetable file when there is such a file there (as a network file's line files), else as given."""
+    p = Path(train)
+    if p.suffix in (".yaml", ".yml") and not p.is_absolute() and is_file(timetable_path.parent / p):
+        return timetable_path.parent / p
+    return train
+
+
 def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: float = 0.5, check_feasible: bool = True) -> list[PlannedTrain]:
     """Resolve every service into planned trains (repeats expanded), checking it against the line."""
     trains: list[PlannedTrain] = []
@@ -263,10 +272,12 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         seen.add(svc.id)
         if svc.train not in stocks:
             try:
-                stocks[svc.train] = load_rolling_stock(svc.train)
+                stocks[svc.train] = load_rolling_stock(_stock_spec(svc.train, path))
             except InputError as exc:
                 if exc.path is None:
-                    raise InputError(path, f"{f}.train", exc.message) from None
+                    where = f" (a relative path is looked for next to the timetable, in {path.parent}, then in the current folder)" \
+                        if Path(svc.train).suffix in (".yaml", ".yml") and not Path(svc.train).is_absolute() else ""
+                    raise InputError(path, f"{f}.train", exc.message + where) from None
                 raise
         stock = stocks[svc.train]
         starts, _ = _endpoint_edges(topo, svc.origin, line, path, f"{f}.origin")

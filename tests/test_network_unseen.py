@@ -1,0 +1,106 @@
+"""Tier 1 — defects found by running a network nobody tuned for (issue 14): three made-up lines
+(a 30 km main line with a 22 ‰ climb and a tunnel, a 12 km branch joined mid-line, a coast line
+whose end runs into the main line's end), a home-made freight train and timetables written as a user
+would, next to the network in a folder of their own."""
+
+import pytest
+
+from vcsumo.errors import InputError
+from vcsumo.line import load_line
+from vcsumo.network_file import load_network
+from vcsumo.network_topology import build_network_topology
+from vcsumo.timetable import load_timetable, plan_trains
+
+from .conftest import write
+
+MAIN = """
+name: ridge
+km_start: 0.0
+km_end: 30.0
+line_speed_kmh: 200
+default_train: etr1000
+stations:
+  - {id: PRT, name: Portlow, km: 0.5, platform_length_m: 450}
+  - {id: RDG, name: Ridgetop, km: 29.4, platform_length_m: 420}
+gradients:
+  - {from_km: 17.0, to_km: 24.0, permille: 22.0}
+signalling: {block_length_m: 1500}
+"""
+COAST = """
+name: coast
+km_start: 100.0
+km_end: 118.0
+line_speed_kmh: 160
+stations:
+  - {id: CST, name: Coastby, km: 100.4, platform_length_m: 500}
+  - {id: EDG, name: Edge, km: 117.8, platform_length_m: 400}
+signalling: {block_length_m: 1500}
+"""
+NET = """
+name: ridge_net
+lines:
+  - {line: ridge.yaml}
+  - {line: coast.yaml}
+joins:
+  - id: ridgetop_join
+    end: {line: coast, at: end}
+    meets: {line: ridge, km: 30.0}
+"""
+FREIGHT = """
+name: freight100
+length_m: 450.0
+mass_kg: 1000000.0
+rotating_mass_factor: 1.08
+max_speed_kmh: 100.0
+max_traction_n: 300000.0
+max_power_w: 4200000.0
+davis_a_n: 14000.0
+davis_b_n_per_mps: 100.0
+davis_c_n_per_mps2: 8.0
+service_brake_decel_mps2: 0.35
+emergency_brake_decel_mps2: 0.5
+max_jerk_mps3: 0.5
+traction_lag_s: 1.0
+"""
+TT = """
+name: t
+line: ridge_net
+services:
+  - {id: F1, train: freight.yaml, origin: "coast:start", destination: "ridge:start", departure: "08:00"}
+"""
+
+
+def _net(tmp_path):
+    write(tmp_path / "ridge.yaml", MAIN)
+    write(tmp_path / "coast.yaml", COAST)
+    return load_network(write(tmp_path / "network.yaml", NET))
+
+
+def test_platform_ending_exactly_at_a_line_end(tmp_path):
+    """A platform that ends at the end of the line (117.8 km + 200 m = 118.0 km) is accepted: the
+    check asked to "end it there", where it already ended (floating-point remainder of 1e-14 km)."""
+    ln = load_line(write(tmp_path / "coast.yaml", COAST))
+    assert ln.station("EDG")[1].km == pytest.approx(117.8)
+    short = COAST.replace("km: 117.8, platform_length_m: 400", "km: 117.795, platform_length_m: 400")
+    with pytest.raises(InputError, match="within 10 m of the section end"):
+        load_line(write(tmp_path / "c2" / "coast.yaml", short))
+
+
+def test_rolling_stock_file_next_to_the_timetable(tmp_path, monkeypatch):
+    """A timetable names its own train file by a path relative to itself (as a network file names its
+    line files), whatever folder vcsumo runs from."""
+    net = _net(tmp_path)
+    write(tmp_path / "freight.yaml", FREIGHT)
+    monkeypatch.chdir(write(tmp_path / "elsewhere" / "x", "").parent)
+    tt, path = load_timetable(write(tmp_path / "t.yaml", TT), net)
+    trains = plan_trains(tt, path, net, build_network_topology(net))
+    assert trains[0].stock.name == "freight100" and trains[0].stock.length_m == 450.0
+
+
+def test_missing_rolling_stock_file_says_where_it_was_looked_for(tmp_path):
+    net = _net(tmp_path)
+    tt, path = load_timetable(write(tmp_path / "t.yaml", TT), net)
+    with pytest.raises(InputError) as exc:
+        plan_trains(tt, path, net, build_network_topology(net))
+    msg = str(exc.value)
+    assert msg.startswith(f"{path}: services[0].train: train file 'freight.yaml' not found") and str(tmp_path) in msg
