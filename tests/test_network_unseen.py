@@ -3,6 +3,8 @@
 whose end runs into the main line's end), a home-made freight train and timetables written as a user
 would, next to the network in a folder of their own."""
 
+import warnings
+
 import pytest
 
 from vcsumo.errors import InputError
@@ -104,3 +106,35 @@ def test_missing_rolling_stock_file_says_where_it_was_looked_for(tmp_path):
         plan_trains(tt, path, net, build_network_topology(net))
     msg = str(exc.value)
     assert msg.startswith(f"{path}: services[0].train: train file 'freight.yaml' not found") and str(tmp_path) in msg
+
+
+CONVOY = """
+name: c
+line: ridge_net
+services:
+  - {id: L, train: regional_emu160, origin: CST, destination: PRT, departure: "08:00", stops: [{station: EDG}, {station: RDG}]}
+  - {id: F, train: etr1000, origin: CST, destination: PRT, departure: "08:00:20", stops: [{station: EDG}, {station: RDG}]}
+convoys:
+  - {id: C, services: [L, F]}
+"""
+
+
+def test_convoy_that_cannot_stand_in_a_shared_platform_is_warned(tmp_path):
+    """A regional (75 m) leading an ETR 1000 (202 m) 72 m behind needs 349 m of platform where both
+    stop: Edge's 400 m holds them, a 240 m one does not — the follower then waits outside the platform
+    until its leader has left, and the convoy falls apart at every such stop (seen as 'not formed: at
+    the line's permitted speed', with nothing naming the platform).  vc says so before it runs."""
+    from vcsumo.sim.vc_driver import make_vc_driver
+
+    net = _net(tmp_path)
+    topo = build_network_topology(net)
+    tt, path = load_timetable(write(tmp_path / "c.yaml", CONVOY), net)
+    trains = plan_trains(tt, path, net, topo)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # 400 m: no warning
+        make_vc_driver(tt, path, trains, "cbc", 0.2)
+    write(tmp_path / "coast.yaml", COAST.replace("km: 117.8, platform_length_m: 400", "km: 117.88, platform_length_m: 240"))
+    net = load_network(tmp_path / "network.yaml")
+    trains = plan_trains(tt, path, net, build_network_topology(net))
+    with pytest.warns(UserWarning, match=r"convoy L\+F: F \(etr1000, 202 m\) cannot stand behind L \(regional_emu160, 75 m\) in the platform of EDG \(240 m\): 349 m needed"):
+        make_vc_driver(tt, path, trains, "cbc", 0.2)
