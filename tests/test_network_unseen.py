@@ -138,3 +138,36 @@ def test_convoy_that_cannot_stand_in_a_shared_platform_is_warned(tmp_path):
     trains = plan_trains(tt, path, net, build_network_topology(net))
     with pytest.warns(UserWarning, match=r"convoy L\+F: F \(etr1000, 202 m\) cannot stand behind L \(regional_emu160, 75 m\) in the platform of EDG \(240 m\): 349 m needed"):
         make_vc_driver(tt, path, trains, "cbc", 0.2)
+
+
+LAKE = """
+name: lake
+km_start: 0.0
+km_end: 12.0
+line_speed_kmh: 140
+stations:
+  - {id: LKS, name: Lakeside, km: 11.6, platform_length_m: 250}
+signalling: {block_length_m: 1200}
+"""
+
+
+def test_no_route_says_what_the_train_can_reach(tmp_path):
+    """The lake line joins the main line at km 15 running alongside it towards its end: a train from
+    Lakeside merges towards Portlow and cannot reach Coastby without reversing.  The error says why
+    and what it can reach."""
+    write(tmp_path / "ridge.yaml", MAIN)
+    write(tmp_path / "coast.yaml", COAST)
+    write(tmp_path / "lake.yaml", LAKE)
+    net = load_network(write(tmp_path / "network.yaml", NET.replace("  - {line: coast.yaml}\n", "  - {line: coast.yaml}\n  - {line: lake.yaml}\n") + """
+  - id: forkham_jn
+    end: {line: lake, at: start}
+    meets: {line: ridge, km: 15.0}
+    towards: end
+    diverging_speed_kmh: 80
+"""))
+    topo = build_network_topology(net)
+    tt, path = load_timetable(write(tmp_path / "t.yaml", TT.replace('train: freight.yaml, origin: "coast:start"', "train: etr1000, origin: LKS")
+                                    .replace('destination: "ridge:start"', "destination: CST")), net)
+    with pytest.raises(InputError, match=r"services\[0\].destination: no route from 'LKS' to 'CST' on ridge_net \(infeasible\): trains do not reverse.*"
+                                         r"from there a train reaches PRT, ridge:start, lake:end$"):
+        plan_trains(tt, path, net, topo)

@@ -28,6 +28,7 @@ from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, time_at, unhindered_run
 from vcsumo.topology import Topology
+from vcsumo.track_graph import reachable
 from vcsumo.units import format_clock, parse_clock
 
 Clock = str | float | int
@@ -250,6 +251,17 @@ def _route(topo: Topology, starts: list[str], legs: list[list[str]]) -> list[str
     return route
 
 
+def _reach_hint(topo: Topology, starts: list[tuple[str, float]], line: Line, origin: str) -> str:
+    """What a train from these start edges can reach (trains do not reverse), for a no-route error."""
+    seen: set[str] = set()
+    for e, _ in starts:
+        seen |= reachable(topo, e)
+    stations = [s for s in line.all_station_ids() if s != origin and any(p.edge in seen for p in topo.platforms_of(s))]
+    ends = [k for k in topo.endpoints if any(e in seen for e in topo.end_edges(k)[1])]
+    return (f": trains do not reverse, and a junction is passed only the way its line leaves (a join's towards, a branch's "
+            f"leaves_towards); from there a train reaches {', '.join(stations + ends) or 'nothing'}")
+
+
 def _stock_spec(train: str, timetable_path: Path) -> str | Path:
     """A service's rolling stock: a shipped name, or a file path; a relative path is taken next to the
     timetable file when there is such a file there (as a network file's line files), else as given."""
@@ -288,7 +300,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         route = _route(topo, [e for e, _ in starts], legs)
         if route is None:
             via = f" via {', '.join(svc.via)}" if svc.via else ""
-            raise InputError(path, f"{f}.destination", f"no route from '{svc.origin}' to '{svc.destination}'{via} on {line.name} (infeasible)")
+            raise InputError(path, f"{f}.destination", f"no route from '{svc.origin}' to '{svc.destination}'{via} on {line.name} (infeasible){_reach_hint(topo, starts, line, svc.origin)}")
         start_pos = dict(starts)[route[0]]
         if start_pos < 0:
             start_pos = min(stock.length_m + 1.0, topo.edges[route[0]].length_m)
