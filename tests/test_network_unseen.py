@@ -318,3 +318,21 @@ def test_opposing_trains_never_pass_each_other_on_a_single_track_branch(tmp_path
     res = simulate(Scenario(line, built, plan_trains(tt, path, line, built.topology), "fbs", step_length_s=0.5), tmp_path / "out")
     assert res.summary["trains_arrived"] == 2
     _never_pass(tmp_path / "out", "sg")
+
+
+def test_planned_meeting_on_single_track_is_warned(tmp_path):
+    """No crossing loops are modelled: two trains timetabled onto the same single track in opposite
+    directions at once cannot pass.  The plan says so, naming both trains, the track and the times
+    (A enters the single track at once, B reaches it 3.5 min later while A is still on it); B leaving
+    after A has cleared it, or a second train following A, is no meeting."""
+    net = _ds(tmp_path)
+    topo = build_network_topology(net)
+    tt, path = load_timetable(write(tmp_path / "h.yaml", HEAD_ON), net)
+    with pytest.warns(UserWarning, match=r"trains A and B are timetabled onto the same single track in opposite directions at the same time "
+                                         r"\(A on sgl.main km 0–15.75 00:00:00–00:0\d:\d\d, B on sgl.main km 0–15.75 00:03:\d\d–"):
+        plan_trains(tt, path, net, topo)
+    later = HEAD_ON.replace("departure: 60", "departure: 600") + "  - {id: C, train: regional_emu160, origin: SGE, destination: DST, departure: 180}\n"
+    tt, path = load_timetable(write(tmp_path / "later.yaml", later), net)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plan_trains(tt, path, net, topo)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -27,6 +28,7 @@ from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, time_at, unhindered_run
+from vcsumo.single_track import single_track_meetings
 from vcsumo.topology import Topology
 from vcsumo.track_graph import reachable
 from vcsumo.units import format_clock, parse_clock
@@ -398,6 +400,8 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             if sid not in seen:
                 raise InputError(path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{sid}', which does not exist")
         check_convoy_times(trains, cv.services, path, f"convoys[{c_i}]", dt)
+    for msg in single_track_meetings(trains, topo, dt):  # they would stand facing each other
+        warnings.warn(f"{path}: {msg}", stacklevel=2)
     return trains
 
 
