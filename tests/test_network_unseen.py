@@ -336,3 +336,18 @@ def test_planned_meeting_on_single_track_is_warned(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         plan_trains(tt, path, net, topo)
+
+
+@pytest.mark.parametrize("station, end", [("CST", "origin"), ("PRT", "destination")])
+def test_origin_or_destination_listed_as_a_stop(tmp_path, station, end):
+    """The destination listed among the stops gave two stops at the same platform (60 s, then the
+    1 s arrival), the origin a message about running order; both are named for what they are."""
+    net = _net(tmp_path)
+    tt, path = load_timetable(write(tmp_path / "s.yaml", f"""
+name: s
+line: ridge_net
+services:
+  - {{id: S1, train: etr1000, origin: CST, destination: PRT, departure: "08:00", stops: [{{station: {station}}}]}}
+"""), net)
+    with pytest.raises(InputError, match=rf"services\[0\]\.stops\[0\]\.station: '{station}' is the service's {end}: stops lists the stops in between"):
+        plan_trains(tt, path, net, build_network_topology(net))

@@ -318,6 +318,8 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                 _, st = line.station(call.station)
             except KeyError:
                 raise InputError(path, f"{fs}.station", f"unknown station '{call.station}' (stations of {line.name}: {', '.join(line.all_station_ids())})") from None
+            if call.station in (svc.origin, svc.destination):
+                raise InputError(path, f"{fs}.station", f"'{call.station}' is the service's {'origin' if call.station == svc.origin else 'destination'}: stops lists the stops in between")
             plat = next((p for p in topo.platforms_of(call.station) if p.edge in route), None)
             if plat is None:
                 raise InputError(path, f"{fs}.station", f"station '{call.station}' is not on the route from '{svc.origin}' to '{svc.destination}'")
