@@ -175,7 +175,7 @@ def _check_stations(stations: list[Station], name: str, lo: float, hi: float) ->
         half = st.platform_length_m / 2000.0
         if st.km - half < lo - 1e-9 or st.km + half > hi + 1e-9:
             problems.append((f"{name}[{i}].km", f"platform {st.km - half:.3f}–{st.km + half:.3f} km of '{st.id}' lies beyond the section ({lo}–{hi} km)"))
-        elif 0 < min(st.km - half - lo, hi - st.km - half) < 0.01 - 1e-9:
+        elif 1e-9 < min(st.km - half - lo, hi - st.km - half) < 0.01 - 1e-9:
             problems.append((f"{name}[{i}].km", f"platform {st.km - half:.3f}–{st.km + half:.3f} km of '{st.id}' ends within 10 m of the section end ({lo}–{hi} km); end it there or leave 10 m"))
     order = sorted(range(len(stations)), key=lambda i: stations[i].km)
     for a, b in zip(order, order[1:]):

@@ -114,6 +114,12 @@ def build_network_topology(net: Network, block_length_m: float | None = None) ->
             nb = b.nodes[attach["into"]]
             pb = _Port(attach["into"], (nb.x, nb.y), nb.z, end_b.out_dir)
             links = [(out_b, into_a, None), (out_a, into_b, None)]
+            if a.edges[into_a].bidi == out_a and attach["into"] != attach["out"]:
+                # a single track running into a double track: a's end edge pair stays one track used both
+                # ways (SUMO keeps opposing trains apart only on such a pair); b's two tracks converge on
+                # a's end node instead
+                node_a = a.edges[into_a].from_node
+                attach = {"into": node_a, "out": node_a, "b_into": into_b, "b_out": out_b}
         else:
             je = _junction_edges(b, f"{jn.meets.line}.main", jn.meets.km)
             diverge, merge = ("up", "down") if jn.towards == "end" else ("down", "up")
@@ -174,13 +180,17 @@ def build_network_topology(net: Network, block_length_m: float | None = None) ->
 
 
 def _stitch(topo: Topology, jn: Join, into_a: str, out_a: str, attach: dict[str, str], links: list[tuple[str, str, float | None]]) -> None:
-    old_in, old_out = topo.edges[into_a].from_node, topo.edges[out_a].to_node
-    for old, new in ((old_in, attach["into"]), (old_out, attach["out"])):
-        if abs(topo.nodes[old].z - topo.nodes[new].z) > Z_MISMATCH_WARN_M:
-            warnings.warn(f"join {jn.id}: the tracks meet {abs(topo.nodes[old].z - topo.nodes[new].z):.1f} m apart in elevation "
+    if "b_into" in attach:  # the met line's end edges move onto the joining single track's end node
+        moves = [(attach["b_into"], "from_node"), (attach["b_out"], "to_node")]
+    else:
+        moves = [(into_a, "from_node"), (out_a, "to_node")]
+    new = attach["into"], attach["out"]
+    for (edge, end), node in zip(moves, new):
+        old = getattr(topo.edges[edge], end)
+        if abs(topo.nodes[old].z - topo.nodes[node].z) > Z_MISMATCH_WARN_M:
+            warnings.warn(f"join {jn.id}: the tracks meet {abs(topo.nodes[old].z - topo.nodes[node].z):.1f} m apart in elevation "
                           "(curves folded into the elevation differ); the first edge's gradient absorbs it", stacklevel=3)
-    topo.edges[into_a] = replace(topo.edges[into_a], from_node=attach["into"])
-    topo.edges[out_a] = replace(topo.edges[out_a], to_node=attach["out"])
+        topo.edges[edge] = replace(topo.edges[edge], **{end: node})
     for node in (attach["into"], attach["out"]):
         topo.nodes[node] = replace(topo.nodes[node], signal=True)
     for a, b, speed in links:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -27,7 +28,9 @@ from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, time_at, unhindered_run
+from vcsumo.single_track import single_track_meetings
 from vcsumo.topology import Topology
+from vcsumo.track_graph import reachable
 from vcsumo.units import format_clock, parse_clock
 
 Clock = str | float | int
@@ -250,6 +253,26 @@ def _route(topo: Topology, starts: list[str], legs: list[list[str]]) -> list[str
     return route
 
 
+def _reach_hint(topo: Topology, starts: list[tuple[str, float]], line: Line, origin: str) -> str:
+    """What a train from these start edges can reach (trains do not reverse), for a no-route error."""
+    seen: set[str] = set()
+    for e, _ in starts:
+        seen |= reachable(topo, e)
+    stations = [s for s in line.all_station_ids() if s != origin and any(p.edge in seen for p in topo.platforms_of(s))]
+    ends = [k for k in topo.endpoints if any(e in seen for e in topo.end_edges(k)[1])]
+    return (f": trains do not reverse, and a junction is passed only the way its line leaves (a join's towards, a branch's "
+            f"leaves_towards); from there a train reaches {', '.join(stations + ends) or 'nothing'}")
+
+
+def _stock_spec(train: str, timetable_path: Path) -> str | Path:
+    """A service's rolling stock: a shipped name, or a file path; a relative path is taken next to the
+    timetable file when there is such a file there (as a network file's line files), else as given."""
+    p = Path(train)
+    if p.suffix in (".yaml", ".yml") and not p.is_absolute() and is_file(timetable_path.parent / p):
+        return timetable_path.parent / p
+    return train
+
+
 def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: float = 0.5, check_feasible: bool = True) -> list[PlannedTrain]:
     """Resolve every service into planned trains (repeats expanded), checking it against the line."""
     trains: list[PlannedTrain] = []
@@ -263,10 +286,12 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         seen.add(svc.id)
         if svc.train not in stocks:
             try:
-                stocks[svc.train] = load_rolling_stock(svc.train)
+                stocks[svc.train] = load_rolling_stock(_stock_spec(svc.train, path))
             except InputError as exc:
                 if exc.path is None:
-                    raise InputError(path, f"{f}.train", exc.message) from None
+                    where = f" (a relative path is looked for next to the timetable, in {path.parent}, then in the current folder)" \
+                        if Path(svc.train).suffix in (".yaml", ".yml") and not Path(svc.train).is_absolute() else ""
+                    raise InputError(path, f"{f}.train", exc.message + where) from None
                 raise
         stock = stocks[svc.train]
         starts, _ = _endpoint_edges(topo, svc.origin, line, path, f"{f}.origin")
@@ -277,7 +302,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         route = _route(topo, [e for e, _ in starts], legs)
         if route is None:
             via = f" via {', '.join(svc.via)}" if svc.via else ""
-            raise InputError(path, f"{f}.destination", f"no route from '{svc.origin}' to '{svc.destination}'{via} on {line.name} (infeasible)")
+            raise InputError(path, f"{f}.destination", f"no route from '{svc.origin}' to '{svc.destination}'{via} on {line.name} (infeasible){_reach_hint(topo, starts, line, svc.origin)}")
         start_pos = dict(starts)[route[0]]
         if start_pos < 0:
             start_pos = min(stock.length_m + 1.0, topo.edges[route[0]].length_m)
@@ -293,6 +318,8 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                 _, st = line.station(call.station)
             except KeyError:
                 raise InputError(path, f"{fs}.station", f"unknown station '{call.station}' (stations of {line.name}: {', '.join(line.all_station_ids())})") from None
+            if call.station in (svc.origin, svc.destination):
+                raise InputError(path, f"{fs}.station", f"'{call.station}' is the service's {'origin' if call.station == svc.origin else 'destination'}: stops lists the stops in between")
             plat = next((p for p in topo.platforms_of(call.station) if p.edge in route), None)
             if plat is None:
                 raise InputError(path, f"{fs}.station", f"station '{call.station}' is not on the route from '{svc.origin}' to '{svc.destination}'")
@@ -375,6 +402,8 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             if sid not in seen:
                 raise InputError(path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{sid}', which does not exist")
         check_convoy_times(trains, cv.services, path, f"convoys[{c_i}]", dt)
+    for msg in single_track_meetings(trains, topo, dt):  # they would stand facing each other
+        warnings.warn(f"{path}: {msg}", stacklevel=2)
     return trains
 
 

@@ -358,9 +358,23 @@ class RouteBraking:
         if target_m <= s_m:
             return target_speed_mps
         e = 0.5 * target_speed_mps * target_speed_mps + self.energy(s_m, target_m, max(v_mps, target_speed_mps))
-        a = self.decel_at(s_m, v_mps)
-        k = a * dead_time_s
-        return max(target_speed_mps, -k + math.sqrt(k * k + 2.0 * max(e, 0.0)))
+        # v²/2 + ∫ a over the dead-time run [s, s + v·T] = e, the run charged where it is run (the
+        # inverse of stopping_distance): solved on the piece of constant deceleration the run ends in
+        x, n = self._x, len(self._g)
+        b = self.brake_part(v_mps)
+        j = min(max(bisect_right(x, s_m) - 1, 0), n - 1)
+        spent = 0.0  # ∫ a from s to the start of piece j (the dead-time run crossed the pieces before)
+        x_j = s_m
+        while True:
+            a = b + G * self._g[j] / self.rho
+            k = a * dead_time_s
+            rest = e - spent + a * (x_j - s_m)
+            v = -k + math.sqrt(k * k + 2.0 * max(rest, 0.0)) if rest > 0.0 else 0.0
+            if j + 1 >= n or s_m + v * dead_time_s <= x[j + 1]:
+                return max(target_speed_mps, v)
+            spent += a * (x[j + 1] - x_j)
+            x_j = x[j + 1]
+            j += 1
 
     def stopping_distance(self, s_m: float, v_mps: float, dead_time_s: float) -> float:
         """Distance from the front at s to where the train stands, braking after the dead time, m."""

@@ -5,6 +5,7 @@ aligned (a convoy leaves a station together).  :class:`vcsumo.sim.vc_driver.VCDr
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 from vcsumo.config import load_model
@@ -84,6 +85,36 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
                                  stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
             clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
             ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
+
+
+def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float]) -> list[str]:
+    """Warn where a follower stops with the train ahead of it but the platform cannot hold both
+    ``standstill_gap_m`` apart: the follower waits outside it until the train ahead has left, so the
+    convoy falls apart there (a timetable matter, not a failure).  One warning per pair of services
+    (repeats together), naming the platforms.  Returns the warnings."""
+    short: dict[tuple[str, str], dict] = {}
+    for members in convoys:
+        for k in range(1, len(members)):
+            ego, ahead = members[k], members[k - 1]
+            ahead_at = {x.platform for x in ahead.stops + ([ahead.final_stop] if ahead.final_stop else [])}
+            gap = standstill_gap_m.get(ego.id, 0.0)
+            need = ahead.stock.length_m + gap + ego.stock.length_m
+            for x in ego.stops + ([ego.final_stop] if ego.final_stop else []):
+                if x.platform in ahead_at and 0.0 < x.platform_length_m < need - 1e-6:
+                    w = short.setdefault((ahead.service, ego.service), {"ego": ego, "ahead": ahead, "need": need, "gap": gap, "at": {}, "n": set()})
+                    w["at"].setdefault(x.station, x.platform_length_m)
+                    w["n"].add(ego.id)
+    out = []
+    for (lead, follow), w in short.items():
+        ego, ahead = w["ego"], w["ahead"]
+        at = ", ".join(f"{st} ({length:g} m)" for st, length in w["at"].items())
+        n = len(w["n"])
+        out.append(f"convoy {lead}+{follow}{f' ({n} trains each)' if n > 1 else ''}: {follow} ({ego.stock.name}, {ego.stock.length_m:g} m) cannot stand "
+                   f"behind {lead} ({ahead.stock.name}, {ahead.stock.length_m:g} m) in the platform of {at}: {w['need']:.0f} m needed with the "
+                   f"{w['gap']:.0f} m standstill gap; it waits outside until {lead} has left (the convoy re-forms after, where both run on)")
+    for msg in out:
+        warnings.warn(msg, stacklevel=2)
+    return out
 
 
 MIN_CONVOY_DWELL_S = 5.0

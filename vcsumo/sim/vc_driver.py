@@ -66,7 +66,7 @@ from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
 from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
-from vcsumo.sim.convoy_plan import MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, load_channel
+from vcsumo.sim.convoy_plan import MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, load_channel, warn_short_platforms
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
 from vcsumo.sim.records import VC_RECORD_COLUMNS, VC_RECORD_FLOATS, CsvStream, RunningStats
@@ -224,7 +224,9 @@ class VCDriver:
                                                    braking=RouteBraking(self.model, ego.stock, ego.profile))
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
-        arrange_convoy_departures(convoys, {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}, self.model)
+        standstill = {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}
+        arrange_convoy_departures(convoys, standstill, self.model)
+        warn_short_platforms(convoys, standstill)
         self.aligned_stops = align_convoy_stops(convoys)
         self.releases: set[str] = set()
 
