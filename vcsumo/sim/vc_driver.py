@@ -326,17 +326,17 @@ class VCDriver:
                 # (margin and position errors behind its rear, as behind any train)
                 s_stop = f.stops_m[f.next_stop]
                 in_platform = s_stop - f.platforms_m[f.next_stop] - 1.0 <= s_pred <= s_stop + 1.0
-                stand = f.pred_stands_m[f.next_stop]
-                if stand is not None and s_pred <= stand + 1.0 and pst.speed_mps > 0.1:
-                    # a predecessor still running to its stop in this platform: behind where it will stand
-                    # (its rear now would put the target back step by step as it brakes in)
-                    target = min(s_stop, stand - f.pred.stock.length_m - self.model.margin_m)
-                else:
-                    target = min(s_stop, s_pred_rear - self.model.margin_m) if in_platform else s_stop
+                target = min(s_stop, s_pred_rear - self.model.margin_m) if in_platform else s_stop
                 to_stop = target - st.s_m
                 stopping = f.braking.stopping_distance(st.s_m, v, 1.5 * self.step_s)
                 if to_stop <= stopping + 150.0:
                     stop_target = target
+                    stand = f.pred_stands_m[f.next_stop]
+                    if stand is not None and s_pred <= stand + 1.0 and pst.speed_mps > 0.1:
+                        # the controller plans towards where a predecessor still braking into this platform will
+                        # stand (its rear now would pull the target back step by step as it brakes in); the
+                        # hand-over to SUMO below keeps to the rear where it is
+                        stop_target = min(s_stop, stand - f.pred.stock.length_m - self.model.margin_m)
                 # hand over to SUMO (and its supervision) once the absolute rule holds behind the predecessor
                 # and the stop curve can still stop the train there: the run-health monitor then checks it so
                 absolute_ok = s_pred_rear - st.s_m >= self.model.margin_m + f.braking.stopping_distance(st.s_m, v, self.model.dead_time_s)
