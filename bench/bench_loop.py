@@ -8,8 +8,9 @@ For each scenario the bench runs, in fresh child processes and one after the oth
    supervision, health, driver — channel, controllers, records —, recording, I/O), peak memory;
 2. **bare** — a plain libsumo loop started from the ``scenario.sumocfg`` the vcsumo run wrote (so
    the same network, routes, step, end and SUMO outputs) that reads, for every running train at
-   every step, what vcsumo reads (speed, road, lane position, odometer and the train ahead within
-   30 km) with ordinary getters, and does nothing else;
+   every step, the values vcsumo reads (road, lane position, speed, acceleration, odometer, route
+   index and the train ahead within 30 km) with the same getters (libsumo's extension functions),
+   and does nothing else;
 3. **sumo** — the same libsumo loop reading nothing (SUMO's own cost, for reference).
 
 It prints CPU seconds, CPU per simulated hour, CPU per 1,000 train-steps by part, the real-time
@@ -122,6 +123,13 @@ def child_bare(cfg: Path, read: bool) -> dict:
     os.chdir(cfg.parent)
     libsumo.start([sumo_binary("sumo"), "-c", cfg.name, "--no-warnings", "true"])
     v = libsumo.vehicle
+    raw = getattr(libsumo, "_libsumo", None)
+
+    def pick(name: str):  # the extension's getters, as vcsumo's SumoBackend calls them
+        return getattr(raw, f"vehicle_{name}", None) or getattr(v, name)
+
+    road, pos, speed, accel, odo, index, leader = (pick(n) for n in ("getRoadID", "getLanePosition", "getSpeed", "getAcceleration", "getDistance",
+                                                                     "getRouteIndex", "getLeader"))
     c0 = time.process_time()
     begin = libsumo.simulation.getTime()
     steps = train_steps = 0
@@ -134,11 +142,8 @@ def child_bare(cfg: Path, read: bool) -> dict:
         train_steps += len(ids)
         if read:
             for vid in ids:
-                v.getSpeed(vid)
-                v.getRoadID(vid)
-                v.getLanePosition(vid)
-                v.getDistance(vid)
-                v.getLeader(vid, LEADER_LOOKAHEAD_M)
+                road(vid), pos(vid), speed(vid), accel(vid), odo(vid), index(vid)
+                leader(vid, LEADER_LOOKAHEAD_M)
         if libsumo.simulation.getMinExpectedNumber() == 0 or t >= end - 1e-9:
             break
     cpu = time.process_time() - c0

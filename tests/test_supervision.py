@@ -175,3 +175,43 @@ def test_an_overrun_is_passing_the_end_of_authority_not_standing_where_placed(li
     h.step(t.id, 0.5, 300.0, 5.0, 0.0, math.inf, 400.0)  # a new authority ahead
     h.step(t.id, 0.5, 700.0, 2.0, -0.5, math.inf, -0.6)  # passes it slowly: a second overrun
     assert h.trains[t.id].overruns == 2
+
+
+SHARED = """
+name: shared_platform
+km_start: 0.0
+km_end: 12.0
+line_speed_kmh: 160
+stations:
+  - {id: A, name: Start, km: 0.3, platform_length_m: 400, dwell_s: 30}
+  - {id: M, name: Middle, km: 6.0, platform_length_m: 600, dwell_s: 30}
+  - {id: B, name: End, km: 11.6, platform_length_m: 400, dwell_s: 30}
+signalling: {block_length_m: 1500}
+"""
+SHARED_TT = """
+name: t
+line: shared_platform
+services:
+  - {id: L, train: etr1000, origin: A, destination: B, departure: 0, stops: [{station: M, dwell_s: 240}]}
+  - {id: F, train: etr1000, origin: A, destination: B, departure: 90, stops: [{station: M, dwell_s: 10}]}
+"""
+
+
+def test_a_train_whose_stop_ends_behind_a_standing_train_is_not_started_at_full_traction(tmp_path):
+    """F berths in the platform behind L (which dwells 4 min) and SUMO serves its 10 s stop there, with
+    its end of authority (MB: 70 m behind L's rear) a few cm ahead. Left to SUMO at the end of the
+    stop, it took one step of full traction (0.35 m/s with 5 cm of authority: below the safe
+    separation; seen on the italy_av_north full day at Bologna C.le AV, 17 violations). A train
+    standing at its stop is left to SUMO only where one step of its strongest start stays within its
+    curve."""
+    line = load_line(write(tmp_path / "s" / "line.yaml", SHARED))
+    net = build_network(line)
+    tt, p = load_timetable(write(tmp_path / "tt.yaml", SHARED_TT), line)
+    trains = plan_trains(tt, p, line, net.topology, dt=0.5)
+    res = simulate(Scenario(line, net, trains, "mb"), tmp_path / "run")
+    s = res.summary
+    ev = res.stop_events
+    f_mid = ev[(ev.train == "F") & (ev.station == "M")]
+    assert len(f_mid) == 1 and f_mid.iloc[0].arrival_s < ev[(ev.train == "L") & (ev.station == "M")].iloc[0].departure_s  # F stood behind L
+    assert s["gap_violations"] == 0 and s["min_margin_m"] >= -0.01
+    assert s["healthy"] and s["stops_skipped"] == 0

@@ -140,3 +140,20 @@ def align_convoy_stops(convoys: list[list[PlannedTrain]], window_s: float = 300.
                     n += 1
             moved[ego.id] = n
     return moved
+
+
+def follower_stops(ego: PlannedTrain, pred: PlannedTrain, offset_m: float | None) -> tuple[list[float], list[float], list[float | None]]:
+    """A convoy follower's stops for the driver: (stopping points, platform lengths, where its
+    predecessor's front will stand in the same platform — in the follower's route frame, ``offset_m``
+    added to the predecessor's positions; None where the predecessor does not stop or the routes
+    share no stretch), m; the end of the route last where the train stops there without a final stop."""
+    own = list(ego.stops) + ([ego.final_stop] if ego.final_stop is not None else [])
+    pred_at = {x.platform: x.s_m for x in list(pred.stops) + ([pred.final_stop] if pred.final_stop is not None else [])}
+    stops = [x.s_m for x in own]
+    plats = [x.platform_length_m for x in own]
+    stands: list[float | None] = [pred_at[x.platform] + offset_m if offset_m is not None and x.platform in pred_at else None for x in own]
+    if ego.final_stop is None and ego.end_pos_m is not None and ego.stop_at_end:
+        stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
+        plats.append(0.0)
+        stands.append(None)
+    return stops, plats, stands

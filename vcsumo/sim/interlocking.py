@@ -100,6 +100,8 @@ class MergeLocking:
                 if e.to_node in merges:
                     out.append(_Approach(e.to_node, float(t.profile.starts_m[i] + t.profile.lengths_m[i]), e.track))
             self.approaches[t.id] = out
+        self._approach_s = {tid: sorted(a.s_m for a in aps) for tid, aps in self.approaches.items()}
+        """Route positions of each train's junction signals, sorted."""
         self._last_approach = {tid: max((a.s_m for a in aps), default=-math.inf) for tid, aps in self.approaches.items()}
         """The farthest junction signal on each train's route: past it nothing here concerns the train, m."""
         self.junctions: dict[str, _Junction] = {n: _Junction(n) for n in merges}
@@ -133,12 +135,17 @@ class MergeLocking:
         """Advance the orders with this step's (route position, speed) of the trains running;
         returns the new constraints (junction, train, foe) to add to SUMO."""
         a = self.model.assumptions
+        dead, err, lock_s = a.dead_time_s, a.position_error_m, self.lock_time_s
         new: list[tuple[str, str, str]] = []
         self.s_m.update({tid: st[0] for tid, st in states.items()})
+        approaches, junctions = self.approaches, self.junctions
         for tid, (s_m, v) in states.items():
+            aps = approaches.get(tid)
+            if not aps:
+                continue
             stop = None  # the train's stopping distance, integrated once and only for a junction within its bound
-            for ap in self.approaches.get(tid, ()):
-                j = self.junctions[ap.node]
+            for ap in aps:
+                j = junctions[ap.node]
                 if tid in j.order or tid in j.cleared:
                     continue
                 if tid in j.first:
@@ -146,10 +153,10 @@ class MergeLocking:
                 d = ap.s_m - s_m
                 if stop is None:
                     br = self.braking[tid]
-                    if s_m >= 0.0 and d > br.stopping_bound(v, a.dead_time_s) + v * self.lock_time_s + a.position_error_m:
+                    if s_m >= 0.0 and d > br.stopping_bound(v, dead) + v * lock_s + err:
                         continue  # farther than the train can need (and so are the junctions after it; a fixed order is constrained above)
-                    stop = br.stopping_distance(s_m, v, a.dead_time_s)
-                if d <= stop + v * self.lock_time_s + a.position_error_m:  # also a train already past the signal
+                    stop = br.stopping_distance(s_m, v, dead)
+                if d <= stop + v * lock_s + err:  # also a train already past the signal
                     self._lock(j, tid, new)
         # a train leaves the order once its rear has cleared the junction (or it has left the network)
         for j in self.junctions.values():
@@ -217,15 +224,28 @@ class MergeLocking:
             j = self.junctions[ap.node]
             if not j.order and tid not in j.first:
                 continue  # nobody has locked it and no order fixes trains before this one
-            track = ap.track
-            for x in self.ahead(ap.node, tid):
-                if self.track_of[(ap.node, x)] == track:
-                    continue
-                if x == coupled_to and self.s_m.get(x, -math.inf) >= self.position[(ap.node, x)]:
-                    continue
+            if self._waits_for_foe(j, tid, ap.track, coupled_to):
                 best = min(best, self.behind_rear(tid, s_m, ap.s_m))  # the train ahead may stand with its rear at the fouling point
-                break
         return best
+
+    def _waits_for_foe(self, j: _Junction, tid: str, track: str, coupled_to: str | None) -> bool:
+        """Some train of :meth:`ahead` comes from another track than ``track`` (not ``coupled_to`` once
+        its front has passed the junction): the same trains as :meth:`ahead`, without building the list."""
+        node, order, first = j.node, j.order, j.first
+        k = order.index(tid) if tid in order else len(order)
+        seen = order[:k]
+        for x in seen:
+            if tid not in first.get(x, ()) and self._foe(node, x, track, coupled_to):
+                return True
+        for x in first.get(tid, ()):
+            if x not in j.cleared and (x not in seen or tid in first.get(x, ())) and self._foe(node, x, track, coupled_to):
+                return True
+        return False
+
+    def _foe(self, node: str, x: str, track: str, coupled_to: str | None) -> bool:
+        if self.track_of[(node, x)] == track:
+            return False
+        return not (x == coupled_to and self.s_m.get(x, -math.inf) >= self.position[(node, x)])
 
     def behind_rear(self, tid: str, s_m: float, rear_m: float) -> float:
         """Distance to the end of authority behind a rear standing at route position ``rear_m``, m:
@@ -248,6 +268,11 @@ class MergeLocking:
         if s_m > self._last_approach.get(tid, -math.inf):
             return None
         length = self.plans[leader].stock.length_m if leader in self.plans else 0.0
+        signals_l = self._approach_s.get(leader)
+        if signals_l is not None:  # no junction signal of the train ahead between its rear and its front: none fouled
+            k = bisect_right(signals_l, leader_s_m - length)
+            if k == len(signals_l) or signals_l[k] > leader_s_m:
+                return None
         for ap in self.approaches.get(tid, ()):
             if ap.s_m < s_m:
                 continue

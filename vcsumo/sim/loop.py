@@ -54,6 +54,7 @@ from vcsumo.sim.route_leaders import RouteLeaders
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
 from vcsumo.sim.sumo_io import write_sumocfg
 from vcsumo.timetable import PlannedTrain, routes_xml
+from vcsumo.units import G
 
 
 
@@ -124,7 +125,6 @@ class _Track:
     sync_odo: float = math.nan
     tf: float = 1.0
     min_gap: float = math.inf
-    in_emergency: bool = False
     emergencies: int = 0
     released_s: float = math.nan
     """When the driver last handed the train back to SUMO (nan: never)."""
@@ -218,12 +218,15 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         convoys = {t.id: scn.driver.predecessor_of(t.id) for t in scn.trains} if scn.driver is not None else {}
         locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
         supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking, braking=health.braking)
+    # the highest speed SUMO can give a train in one step from rest: full traction, no resistance, its route's steepest descent
+    start_speed = {t.id: dt * (t.stock.max_traction_n / t.stock.mass_kg - G * min(0.0, t.profile.gradient_range(0.0, t.profile.length_m)[0])) for t in scn.trains}
     driver = scn.driver
     if driver is not None and scn.full_outputs and hasattr(driver, "stream_records"):
         driver.stream_records(out)  # the driver's per-step records go to disk as the run goes
     stop_releases = getattr(driver, "stop_releases", lambda: ())  # a driver that never ends a stop need not say so
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
+    emergency_before: set[str] = set()
     capped: set[str] = set()
     timing = {"sumo_s": 0.0, "controller_s": 0.0}
     steps = train_steps = 0
@@ -342,10 +345,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if required is not None:
                     sec, km_v = tr.plan.profile.km_at(s_now)  # the gap just fell below the safe separation
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))
-                # a train standing at its stop is left to SUMO (commanding it to move would abort the stop); the cap
-                # takes it from the step it moves (one standing elsewhere stays capped: SUMO would start it past its curve)
+                # a train standing at its stop is left to SUMO where one step of its strongest start stays within its
+                # curve; the cap takes it from the step it moves (one standing elsewhere stays capped, and so does one whose
+                # end of authority is closer than one step of full traction: SUMO would start it past its curve)
                 if perm is not None and perm.speed_mps < speed + 2.0:
-                    if speed < 0.01 and perm.speed_mps > 0.0 and sim.at_stop(vid):
+                    if speed < 0.01 and perm.speed_mps >= start_speed[vid] and sim.at_stop(vid):
                         held[vid] = perm.speed_mps
                     else:
                         caps[vid] = perm.speed_mps
@@ -371,12 +375,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             cpu["supervision"] += c - c_mark
             c_mark = c
             # ---------------------------------------------------------------- health: SUMO's events
-            emergency_now = set(sim.emergency_stops())
-            for vid in active:
-                tr = state[vid]
-                if vid in emergency_now and not tr.in_emergency:
-                    tr.emergencies += 1
-                tr.in_emergency = vid in emergency_now
+            emergency_now = {vid for vid in sim.emergency_stops() if vid in obs}  # (running trains)
+            for vid in emergency_now - emergency_before:  # one emergency stop per episode
+                state[vid].emergencies += 1
+            emergency_before = emergency_now
             touching = set(sim.collisions())  # SUMO reports a collision at every step the trains overlap
             for collider, victim in touching - touching_before:  # one collision per episode
                 collisions.append((t, collider, victim))

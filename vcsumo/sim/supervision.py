@@ -110,6 +110,11 @@ class BrakingCurveSupervisor:
         self._keep_s = self.fixed_time_s + a.position_report_period_s + 2.0 * step_s
         """How long an odometer reading is kept, s."""
         self._dead_s = a.dead_time_s
+        self._pos_err = a.position_error_m
+        self._overlap = a.overlap_m
+        self._margin = a.safety_margin_m
+        self._uncertainty = a.position_uncertainty_m
+        """The assumption set's figures the per-step rules read (its properties computed once)."""
         self._history = regime == "mb" or self.fixed_time_s > 0.0
         """Odometer readings are kept only when an authority is built from an older position (MB
         reports, fixed times): under FBS without fixed times it is built from the present one."""
@@ -187,22 +192,23 @@ class BrakingCurveSupervisor:
         """Distance from the front to the end of movement authority given the train ahead, m."""
         if leader_id is None or math.isinf(gap_m):
             return math.inf
-        a = self.model.assumptions
-        c = self.curves[train_id]
         lead = self.curves.get(leader_id)
-        moved = 0.0 if lead is None else self._moved_since(lead, self.information_time(leader_id, now_s))
+        # (without a history the authority is built from the present position: nothing moved since)
+        moved = 0.0 if lead is None or not self._history else self._moved_since(lead, self.information_time(leader_id, now_s))
         rear = s_m + gap_m - moved
         if self.regime == "mb":
-            return rear - s_m - a.safety_margin_m - a.position_uncertainty_m
+            return rear - s_m - self._margin - self._uncertainty
         # the rear as the interlocking knows it (less the train ahead's position error) must be an
         # overlap beyond the signal that ends the authority; the train stops its own position error
         # short of that signal
-        clear = rear - a.overlap_m - a.position_error_m
-        k = bisect_right(c.signals, clear) - 1
-        if k < 0 or c.signals[k] < s_m - 2 * a.position_error_m - 1.0:
+        err = self._pos_err
+        clear = rear - self._overlap - err
+        signals = self.curves[train_id].signals
+        k = bisect_right(signals, clear) - 1
+        if k < 0 or signals[k] < s_m - 2 * err - 1.0:
             # no signal between the train and the rear of the one ahead: it moves on sight behind it
-            return clear - s_m - a.position_error_m
-        return c.signals[k] - s_m - a.position_error_m
+            return clear - s_m - err
+        return signals[k] - s_m - err
 
     def permitted(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None) -> Permitted:
         """The lowest braking curve over the train's targets, for the next step, m/s.
@@ -215,6 +221,7 @@ class BrakingCurveSupervisor:
             return Permitted(math.inf, "")
         a_set = self.model.assumptions
         dt = self.step_s
+        dead = self._dead_s
         rs = c.restriction_s
         k0 = bisect_right(rs, s_m)  # the first restriction ahead
         stops = c.stops
@@ -236,12 +243,12 @@ class BrakingCurveSupervisor:
             nearest = stops[c.next_stop] - s_m
         if c.end_s is not None and c.end_s - s_m < nearest:
             nearest = c.end_s - s_m
-        if s_m >= 0.0 and nearest > 1.3 * c.braking.stopping_bound(v_mps, self._dead_s + 2 * dt) + 50.0:
+        if s_m >= 0.0 and nearest > 1.3 * c.braking.stopping_bound(v_mps, dead + 2 * dt) + 50.0:
             return Permitted(math.inf, "", d_ma)
         best, reason = math.inf, ""
         # how far ahead a target can matter: the stopping distance with a generous margin
         br = c.braking
-        reach = 1.3 * br.stopping_distance(s_m, v_mps, a_set.dead_time_s + 2 * dt) + 50.0
+        reach = 1.3 * br.stopping_distance(s_m, v_mps, dead + 2 * dt) + 50.0
         for s_t, v_t in c.restrictions[k0:]:
             if s_t <= s_m:
                 continue
@@ -261,11 +268,11 @@ class BrakingCurveSupervisor:
                 if vp < best:
                     best, reason = vp, "stop"
         if c.end_s is not None and c.end_s - s_m <= reach:
-            vp = br.permitted_speed(s_m, c.end_s - a_set.position_error_m, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
+            vp = br.permitted_speed(s_m, c.end_s - a_set.position_error_m, 0.0, dead + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "end"
         if d_ma <= reach:
-            vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, a_set.dead_time_s + 1.5 * dt, v_mps)
+            vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, dead + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "authority"
         return Permitted(best, reason, d_ma)

@@ -66,7 +66,8 @@ from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
 from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
-from vcsumo.sim.convoy_plan import MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, load_channel, warn_short_platforms
+from vcsumo.sim.convoy_plan import (MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, follower_stops, load_channel,
+                                     warn_short_platforms)
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
 from vcsumo.sim.records import VC_RECORD_COLUMNS, VC_RECORD_FLOATS, CsvStream, RunningStats
@@ -146,6 +147,9 @@ class _Follower:
     released_at_s: float = math.nan
     stops_m: list[float] = field(default_factory=list)
     platforms_m: list[float] = field(default_factory=list)
+    pred_stands_m: list[float | None] = field(default_factory=list)
+    """Per stop: where the predecessor's front will stand when it stops in the same platform (this
+    follower's route frame; None: it does not stop there), m."""
     params: object = None
     next_stop: int = 0
     stop_handovers: int = 0
@@ -212,16 +216,9 @@ class VCDriver:
                         f = frame(other, ego)
                         if f is not None:
                             frames[other.id] = f
-                stops = [x.s_m for x in ego.stops]
-                plats = [x.platform_length_m for x in ego.stops]
-                if ego.final_stop is not None:
-                    stops.append(ego.final_stop.s_m)
-                    plats.append(ego.final_stop.platform_length_m)
-                elif ego.end_pos_m is not None and ego.stop_at_end:
-                    stops.append(float(ego.profile.starts_m[-1] + ego.end_pos_m))
-                    plats.append(0.0)
+                stops, plats, stands = follower_stops(ego, pred, frames[pred.id].offset_m if pred.id in frames else None)
                 self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params(),
-                                                   braking=RouteBraking(self.model, ego.stock, ego.profile))
+                                                   braking=RouteBraking(self.model, ego.stock, ego.profile), pred_stands_m=stands)
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
         standstill = {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}
@@ -334,6 +331,12 @@ class VCDriver:
                 stopping = f.braking.stopping_distance(st.s_m, v, 1.5 * self.step_s)
                 if to_stop <= stopping + 150.0:
                     stop_target = target
+                    stand = f.pred_stands_m[f.next_stop]
+                    if stand is not None and s_pred <= stand + 1.0 and pst.speed_mps > 0.1:
+                        # the controller plans towards where a predecessor still braking into this platform will
+                        # stand (its rear now would pull the target back step by step as it brakes in); the
+                        # hand-over to SUMO below keeps to the rear where it is
+                        stop_target = min(s_stop, stand - f.pred.stock.length_m - self.model.margin_m)
                 # hand over to SUMO (and its supervision) once the absolute rule holds behind the predecessor
                 # and the stop curve can still stop the train there: the run-health monitor then checks it so
                 absolute_ok = s_pred_rear - st.s_m >= self.model.margin_m + f.braking.stopping_distance(st.s_m, v, self.model.dead_time_s)
