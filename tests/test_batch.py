@@ -73,6 +73,16 @@ def test_metrics_follow_from_the_train_rows(batch):
         assert (t.arrival_delay_s <= 300).mean() == pytest.approx(run.punctuality_5min_share, abs=1e-3)
         assert t.arrival_delay_s.max() == pytest.approx(run.max_arrival_delay_s, abs=0.01)
         assert (t.arrival_s >= t.departure_s).all()
+    # every run's health is in its row, as the run's own summary has it (a run not healthy is never a clean row)
+    for _, run in ok.iterrows():
+        run_dir = Path(run.run_dir) if Path(run.run_dir).is_absolute() else out / run.run_dir
+        summ = json.loads((run_dir / "summary.json").read_text())
+        assert str(run.healthy).lower() == str(summ["healthy"]).lower()
+        for col in ("stops_skipped", "overspeed_events", "beyond_service_brakings", "authority_overruns"):
+            assert int(run[col]) == summ[col]
+        assert float(run.min_margin_m) == pytest.approx(summ["min_margin_m"])
+        healthy = summ["trains_arrived"] == summ["trains"] and summ["stops_skipped"] == 0 and summ["gap_violations"] == 0 and summ["collisions"] == 0
+        assert not (str(run.healthy).lower() == "true" and not healthy)
     # a delayed train is late by at least... nothing less than its own departure delay minus the margin
     base_margin = 210 - 186  # scheduled - minimum running time on felez_test
     assert (tr.arrival_delay_s >= tr.origin_delay_s - base_margin - 1.0).all()

@@ -251,6 +251,7 @@ SUMMARY_AGG = {
     "primary_delay_s": ("primary_delay_s", "mean"), "knock_on_delay_s": ("knock_on_delay_s", "mean"),
     "capacity_consumption_pct": ("capacity_consumption_pct", "first"), "capacity_consumption_cyclic_pct": ("capacity_consumption_cyclic_pct", "first"),
     "gap_violations": ("gap_violations", "sum"), "collisions": ("collisions", "sum"), "emergency_brakes": ("emergency_brakes", "sum"),
+    "unhealthy_runs": ("unhealthy", "sum"), "min_margin_m": ("min_margin_m", "min"),
 }
 
 
@@ -260,6 +261,7 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
         return pd.DataFrame(columns=["timetable", "regime", "controller", *SUMMARY_AGG])
     d = df.copy()
     d["failed"] = d["status"] != "ok"
+    d["unhealthy"] = ~d["healthy"].astype(str).str.lower().isin(("true", "1", "1.0"))  # (read back from batch.csv as text or bool)
     ok = d[~d["failed"]]
     counts = d.groupby(["timetable", "regime", "controller"], sort=False).agg(runs=("seed", "size"), failed=("failed", "sum"))
     agg = {k: v for k, v in SUMMARY_AGG.items() if k not in ("runs", "failed")}

@@ -17,7 +17,11 @@ Metrics of a run (``BATCH_COLUMNS``; times in s):
 * ``capacity_consumption_pct``: UIC 406 consumption of the timetable (no delays) under the run's
   regime, maximum over the line sections (:mod:`vcsumo.signalling.uic406`; ``..._cyclic_pct`` with the cycle
   closed);
-* ``min_gap_m``, ``gap_violations``, ``collisions``, ``emergency_brakes``: from the simulation.
+* ``min_gap_m``, ``gap_violations``, ``collisions``, ``emergency_brakes``: from the simulation;
+* the run's health (:mod:`vcsumo.sim.health`): ``healthy`` (every train arrived, every stop served,
+  no overspeed, overrun, collision, braking beyond service or gap below the safe separation),
+  ``min_margin_m`` (smallest gap minus the safe separation), ``stops_skipped``, ``overspeed_events``,
+  ``beyond_service_brakings``, ``authority_overruns``.
 """
 
 from __future__ import annotations
@@ -43,7 +47,8 @@ BATCH_COLUMNS = [
     "timetable", "regime", "controller", "seed", "status", "error", "trains", "trains_arrived",
     "punctuality_3min_share", "punctuality_5min_share", "mean_arrival_delay_s", "max_arrival_delay_s",
     "primary_delay_s", "knock_on_delay_s", "capacity_consumption_pct", "capacity_consumption_cyclic_pct",
-    "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "wall_time_s",
+    "min_gap_m", "gap_violations", "collisions", "emergency_brakes",
+    "healthy", "min_margin_m", "stops_skipped", "overspeed_events", "beyond_service_brakings", "authority_overruns", "wall_time_s",
     "line", "timetable_sha256", "delay_config_sha256", "run_key", "run_dir",
 ]
 TRAIN_COLUMNS = [
@@ -208,5 +213,9 @@ def _metrics(spec: RunSpec, planned, delays, ref: dict[str, float], res) -> tupl
         knock_on_delay_s=round(float(arr["knock_on_delay_s"].sum()), 2),
         min_gap_m=round(float(s["min_gap_m"]), 3) if s.get("min_gap_m") is not None else math.nan,
         gap_violations=int(s["gap_violations"]), collisions=int(s["collisions"]), emergency_brakes=int(s["emergency_brakes"]),
+        # the run's health (vcsumo.sim.health): a run that is not healthy is never a clean row
+        healthy=bool(s["healthy"]), min_margin_m=s["min_margin_m"] if s.get("min_margin_m") is not None else math.nan,
+        stops_skipped=int(s["stops_skipped"]), overspeed_events=int(s["overspeed_events"]),
+        beyond_service_brakings=int(s["beyond_service_brakings"]), authority_overruns=int(s["authority_overruns"]),
     )
     return row, train_rows
