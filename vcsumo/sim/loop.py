@@ -202,7 +202,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         k = bisect_right(marks, s_m)
         return (marks[k - 1] if k > 0 else -math.inf), (marks[k] if k < len(marks) else math.inf)
     state: dict[str, _Track] = {}
-    traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS) if scn.full_outputs else None
+    # (its rows are built below from SUMO's floats, rounded floats and None: no per-row check)
+    traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, floats_checked=True) if scn.full_outputs else None
     pass_rows: list[tuple] = []
     collisions: list[tuple[float, str, str]] = []
     teleports: list[tuple[float, str]] = []
@@ -327,8 +328,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             # ---------------------------------------------------------------- supervision (braking curves)
             perms: list = [None] * len(rows)
             if supervisor is not None:
+                odometry = supervisor.reads_odometry
                 for i, (vid, tr, s_now, speed, _a, _e, lead, gap, controlled) in enumerate(rows):
-                    supervisor.observe(vid, t, obs[vid][4])
+                    if odometry:
+                        supervisor.observe(vid, t, obs[vid][4])
                     if not controlled:
                         perms[i] = supervisor.permitted(vid, t, s_now, speed, gap, lead[0] if lead else None)
             c = clock()

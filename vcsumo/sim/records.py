@@ -33,11 +33,14 @@ class CsvStream:
     line ends, a float as its shortest repr, a missing value (None, or NaN in a float column) as
     an empty field, a value of a float column (an int too) as a float."""
 
-    def __init__(self, path: Path, columns: Sequence[str], float_columns: Sequence[str] = (), chunk_rows: int = 50_000):
+    def __init__(self, path: Path, columns: Sequence[str], float_columns: Sequence[str] = (), chunk_rows: int = 50_000, floats_checked: bool = False):
         self.path = Path(path)
         self.columns = list(columns)
         self.float_columns = [c for c in float_columns if c in self.columns]
         self._float_idx = [self.columns.index(c) for c in self.float_columns]
+        self.floats_checked = floats_checked
+        """The caller's rows hold in their float columns only floats (never NaN) or None: written as they
+        are (the same bytes; the per-row check of the other rows is skipped)."""
         self.chunk_rows = chunk_rows
         self.rows: list[tuple] = []
         self.written = 0
@@ -81,7 +84,7 @@ class CsvStream:
             if not self._started:
                 w.writerow(self.columns)
             cells = self._cells
-            w.writerows([cells(r) for r in self.rows] if self._float_idx else self.rows)
+            w.writerows([cells(r) for r in self.rows] if self._float_idx and not self.floats_checked else self.rows)
         self._started = True
         self.written += len(self.rows)
         self.rows = []

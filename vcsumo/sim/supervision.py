@@ -145,6 +145,12 @@ class BrakingCurveSupervisor:
             self.curves[t.id] = _Curves(t, restrictions, stops, end_s, sorted((signals or {}).get(t.id, [])), braking,
                                         [x for x, _ in restrictions], platform_from=[x - length if length > 0 else x for x, length in at])
 
+    @property
+    def reads_odometry(self) -> bool:
+        """The authorities are built from the trains' odometer readings (MB reports, fixed times): the
+        loop hands :meth:`observe` every train's odometer at every step; else nothing reads them."""
+        return self._history or self.regime == "mb"
+
     # ------------------------------------------------------------------------------------------
     def observe(self, train_id: str, time_s: float, odometer_m: float) -> None:
         """The train's odometer this step (kept as long as the fixed time and report period need)."""
