@@ -29,7 +29,7 @@ def batch(cfg: BatchConfig) -> None:
     """The batch of ``cfg`` (``vcsumo batch`` and ``vcsumo study run`` of a batch study file)."""
     from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
     from vcsumo.results import recording
-    from vcsumo.studies.batch import run_batch, summarize
+    from vcsumo.studies.batch import run_batch, summarize, unhealthy
 
     inp = cfg.inputs()
     line = inp.line
@@ -63,9 +63,9 @@ def batch(cfg: BatchConfig) -> None:
                                                     "mean_arrival_delay_s", "knock_on_delay_s", "uic406_%", "uic406_cyc_%", "collisions"])
     out_console.print(f"{len(df)} runs: {df.attrs['new_runs']} run now, {df.attrs['resumed_runs']} already in batch.csv; "
                       f"{df.attrs['failed_runs']} failed")
-    unhealthy = df[(df["status"] == "ok") & ~df["healthy"].astype(str).str.lower().isin(("true", "1", "1.0"))]
-    if len(unhealthy):  # a run that is not healthy is never shown as clean
-        out_console.print(f"  {len(unhealthy)} finished runs are not healthy (see healthy, stops_skipped, overspeed_events, authority_overruns, "
+    n_unhealthy = int(unhealthy(df).sum())
+    if n_unhealthy:  # a run that is not healthy is never shown as clean
+        out_console.print(f"  {n_unhealthy} finished runs are not healthy (see healthy, stops_skipped, overspeed_events, authority_overruns, "
                           f"gap_violations in batch.csv)", markup=False, highlight=False)
     failed = df[df["status"] != "ok"]
     if len(failed):

@@ -230,17 +230,8 @@ class MergeLocking:
 
     def _waits_for_foe(self, j: _Junction, tid: str, track: str, coupled_to: str | None) -> bool:
         """Some train of :meth:`ahead` comes from another track than ``track`` (not ``coupled_to`` once
-        its front has passed the junction): the same trains as :meth:`ahead`, without building the list."""
-        node, order, first = j.node, j.order, j.first
-        k = order.index(tid) if tid in order else len(order)
-        seen = order[:k]
-        for x in seen:
-            if tid not in first.get(x, ()) and self._foe(node, x, track, coupled_to):
-                return True
-        for x in first.get(tid, ()):
-            if x not in j.cleared and (x not in seen or tid in first.get(x, ())) and self._foe(node, x, track, coupled_to):
-                return True
-        return False
+        its front has passed the junction)."""
+        return any(self._foe(j.node, x, track, coupled_to) for x in self.ahead(j.node, tid))
 
     def _foe(self, node: str, x: str, track: str, coupled_to: str | None) -> bool:
         if self.track_of[(node, x)] == track:

@@ -255,13 +255,18 @@ SUMMARY_AGG = {
 }
 
 
+def unhealthy(df: pd.DataFrame) -> pd.Series:
+    """Finished runs (status ok) whose ``healthy`` is not true (read back from batch.csv as text or bool)."""
+    return (df["status"] == "ok") & ~df["healthy"].astype(str).str.lower().isin(("true", "1", "1.0"))
+
+
 def summarize(df: pd.DataFrame) -> pd.DataFrame:
     """Per timetable × regime × controller: runs, failures and the means over seeds of the ok runs."""
     if df.empty:
         return pd.DataFrame(columns=["timetable", "regime", "controller", *SUMMARY_AGG])
     d = df.copy()
     d["failed"] = d["status"] != "ok"
-    d["unhealthy"] = ~d["healthy"].astype(str).str.lower().isin(("true", "1", "1.0"))  # (read back from batch.csv as text or bool)
+    d["unhealthy"] = unhealthy(d)
     ok = d[~d["failed"]]
     counts = d.groupby(["timetable", "regime", "controller"], sort=False).agg(runs=("seed", "size"), failed=("failed", "sum"))
     agg = {k: v for k, v in SUMMARY_AGG.items() if k not in ("runs", "failed")}
@@ -301,5 +306,5 @@ def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path]
 __all__ = [
     "BATCH_COLUMNS", "BATCH_TABLE", "DEFAULT_CONTROLLER", "PUNCTUALITY_THRESHOLDS_S", "REGIMES", "SUMMARY_AGG", "TRAIN_COLUMNS", "TRAINS_TABLE",
     "UIC_COLUMNS", "WORKER_DIED", "RunSpec", "default_batch_out", "failed_outcome", "plan_runs", "read_batch", "resolve_timetables", "run_batch",
-    "run_key", "run_one", "summarize", "write_report",
+    "run_key", "run_one", "summarize", "unhealthy", "write_report",
 ]
