@@ -139,13 +139,13 @@ class MergeLocking:
         """One direction at a time on every stretch of single track (its end of authority and SUMO
         constraints come with this class's)."""
 
-    def update(self, states: dict[str, tuple[float, float]]) -> list[tuple[str, str, str, str]]:
+    def update(self, states: dict[str, tuple[float, float]]) -> list[tuple[str, str, str]]:
         """Advance the orders with this step's (route position, speed) of the trains running;
-        returns the new constraints (signal, train, foe's signal, foe) to add to SUMO (at a
-        junction both signals are the junction's; on single track, :mod:`vcsumo.sim.single_track_lock`)."""
+        returns the new constraints (junction, train, foe) to add to SUMO.  (The stretches of
+        single track advance in ``self.single.update``, which returns its own.)"""
         a = self.model.assumptions
         dead, err, lock_s = a.dead_time_s, a.position_error_m, self.lock_time_s
-        new: list = []
+        new: list[tuple[str, str, str]] = []
         self.s_m.update({tid: st[0] for tid, st in states.items()})
         approaches, junctions = self.approaches, self.junctions
         for tid, (s_m, v) in states.items():
@@ -183,7 +183,7 @@ class MergeLocking:
                 else:
                     j.cleared.add(tid)
             j.order = keep
-        return [(n, tid, n, foe) for n, tid, foe in new] + self.single.update(states)
+        return new
 
     def arrived(self, gone: list[str]) -> None:
         """Trains that left the network."""

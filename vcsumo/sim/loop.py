@@ -364,7 +364,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             # ---------------------------------------------------------------- supervision: merges, caps
             if locking is not None:  # approach locking at merges (used by the supervision from the next step)
                 locking.arrived(arrived_now)
-                for sig, train, foe_sig, foe in locking.update({r[0]: (r[2], r[3]) for r in rows}):
+                moving = {r[0]: (r[2], r[3]) for r in rows}
+                for sig, train, foe in locking.update(moving):
+                    sim.add_constraint(sig, train, sig, foe)
+                for sig, train, foe_sig, foe in locking.single.update(moving):  # one direction at a time on single track
                     sim.add_constraint(sig, train, foe_sig, foe)
             for r in rows:
                 vid = r[0]
