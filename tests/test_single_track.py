@@ -231,3 +231,21 @@ def test_convoy_waits_in_front_of_the_single_track_and_runs_on_it_coupled(tmp_pa
     follower = json.loads((tmp_path / "out" / "vc_summary.json").read_text())["followers"][0]
     assert follower["train"] == "X2" and follower["coupled_steps"] > 1000
     _apart(tr, ["X1", "X2"], ["Y"], "sgl.main")
+
+
+def test_single_track_nodes_are_no_merging_junctions(tmp_path):
+    """The approach locking orders trains only where two tracks run on over a common edge: at the
+    branch's junction on the down track (the branch's trains merge into it), not at the nodes of the
+    single track, where the two directions' edges end (taking those for merges locked opposing
+    trains against each other: they stood facing each other to the end of the run)."""
+    from vcsumo.sim.interlocking import merge_nodes
+    from vcsumo.sim.single_track_lock import stretches
+    from vcsumo.topology import build_topology
+
+    topo = build_topology(load_line(write(tmp_path / "dsb" / "line.yaml", DSB)))
+    merges = merge_nodes(topo)
+    junction_down = topo.edges[topo.tracks["sg_down"].edges[-1]].to_node
+    assert merges == {junction_down}
+    # the branch is one stretch, from the junction on each main track to its end
+    st = stretches(topo)
+    assert set(st) == set(topo.tracks["sg_up"].edges) | set(topo.tracks["sg_down"].edges) and set(st.values()) == {0}
