@@ -152,9 +152,6 @@ class SingleTrackLocking:
         self.gone: set[str] = set()
 
     # ------------------------------------------------------------------------------------------
-    def _holds(self, tid: str, run: Run) -> bool:
-        return (tid, run.first) in self.given
-
     def _may_have(self, tid: str, run: Run) -> bool:
         """No train the other way holds the stretch or asked for it before this one."""
         for other, r in self.order.get(run.stretch, ()):
@@ -247,10 +244,6 @@ class SingleTrackLocking:
                 return self.hold_distance(tid, run, s_m)
             return math.inf  # not asked for yet (nor any later one)
         return math.inf
-
-    def waiting(self) -> list[str]:
-        """Trains that asked for a stretch and wait for it."""
-        return [tid for q in self.order.values() for tid, r in q if (tid, r.first) not in self.given]
 
 
 class OpposingTrains:
