@@ -212,13 +212,14 @@ services:
 """
 
 
-SINGLE_TRACK_OPEN = ("open: opposing trains in motion on a single track used both ways. vcsumo's approach locking (sim/interlocking.merge_nodes) "
-                     "takes every node of a single track for a merging junction and locks the opposing trains against each other there, "
-                     "while SUMO holds the other back: both stand facing each other to the end of the run (reported: not arrived). Counting "
-                     "only nodes whose incoming tracks run on over a common edge ends the deadlock but exposes SUMO's single-track protection "
-                     "(signals at every block node, and a single-track branch or junction join leaving its junction as two one-way edges): "
-                     "the trains then pass through each other unreported. Needs both: the merge rule, and one bidirectional edge pair from "
-                     "the junction with SUMO's driveways reaching the far end of the single track (or a health check of opposing trains)")
+SINGLE_TRACK_FOUND = ("found here: opposing trains in motion on a single track used both ways stood facing each other to the end of the "
+                      "run (reported: not arrived). vcsumo's approach locking (sim/interlocking.merge_nodes) took every node of a single "
+                      "track for a merging junction and locked the opposing trains against each other there, while SUMO held the other "
+                      "back; counting only true merges ended the deadlock but let them pass through each other unreported where a "
+                      "single-track branch leaves its junction as two one-way edges. Now merge_nodes counts only nodes whose incoming "
+                      "tracks run on over a common edge, sim/single_track_lock gives each stretch to one direction at a time (the other "
+                      "train's authority ends in front of it, and SUMO is constrained the same way), and the loop counts opposing trains "
+                      "meeting on single track as a collision")
 
 
 def _ds(tmp_path):
@@ -245,11 +246,11 @@ def test_single_track_end_joined_to_double_track_stays_single(tmp_path):
 
 
 @pytest.mark.sumo
-@pytest.mark.xfail(strict=True, reason=SINGLE_TRACK_OPEN)
 def test_no_head_on_deadlock_entering_a_single_track_line(tmp_path):
     """B leaves the double-track line for the single track while A runs towards it on the single
     track: B must wait at the join until A has left the single track; both arrive, and they never
-    pass each other on it (0 of 2 arrive: they stand facing each other until the end of the run)."""
+    pass each other on it (0 of 2 arrived: they stood facing each other until the end of the run;
+    SINGLE_TRACK_FOUND)."""
     from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.sim.network import build_network
 
@@ -307,8 +308,10 @@ services:
 
 
 @pytest.mark.sumo
-@pytest.mark.xfail(strict=True, reason=SINGLE_TRACK_OPEN)
 def test_opposing_trains_never_pass_each_other_on_a_single_track_branch(tmp_path):
+    """A single-track branch leaving a double-track line: B waits on the main line until A has
+    left the branch (they passed through each other on the branch's first edge pair, two one-way
+    edges; SINGLE_TRACK_FOUND)."""
     from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.sim.network import build_network
 

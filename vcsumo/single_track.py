@@ -2,8 +2,9 @@
 
 vcsumo models no crossing loops: a single-track line or branch (``tracks: single``) is one track used
 both ways from end to end, so two trains timetabled onto it in opposite directions at overlapping
-times cannot pass; in SUMO they end up standing facing each other (issue 14, found on a network of
-our own).  :func:`single_track_meetings` finds them from every train's unhindered run (its own
+times cannot pass: the interlocking gives the single track to one direction at a time
+(:mod:`vcsumo.sim.single_track_lock`), and the train that asks for it later waits in front of it
+until the other has left it — a delay the timetable did not plan.  :func:`single_track_meetings` finds them from every train's unhindered run (its own
 timetabled stops and dwells, departure as planned): the time its front enters a stretch of
 single track and the time its rear leaves it.  Trains delayed on the way can still meet; trains
 reported here meet unless another one holds them back first.
@@ -64,6 +65,6 @@ def single_track_meetings(trains: list, topo: Topology, dt: float = 0.5) -> list
             if a != b and ea & tb and a0 < b1 and b0 < a1:
                 out.append(f"trains {a} and {b} are timetabled onto the same single track in opposite directions at the same time "
                            f"({a} on {wa} {format_clock(a0)}–{format_clock(a1)}, {b} on {wb} {format_clock(b0)}–{format_clock(b1)}, "
-                           "unhindered): no crossing loop is modelled, so one waits until the other has left it, or, if both enter it, "
-                           "they stand facing each other to the end of the run")
+                           "unhindered): no crossing loop is modelled, so the one that asks for the single track later waits in front of "
+                           "it until the other has left it (a delay)")
     return out

@@ -42,6 +42,7 @@ from bisect import bisect_right
 from dataclasses import dataclass, field
 
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
+from vcsumo.sim.single_track_lock import SingleTrackLocking
 from vcsumo.timetable import PlannedTrain
 from vcsumo.topology import Topology
 
@@ -71,12 +72,16 @@ class _Junction:
 
 
 def merge_nodes(topo: Topology) -> set[str]:
-    """Signal nodes where edges of two or more tracks come together."""
-    tracks: dict[str, set[str]] = {}
+    """Signal nodes where edges of two or more tracks come together and run on over a common edge.
+
+    (A node of a single track, where the two directions' edges end, is no merge: those trains run
+    towards each other, which :mod:`vcsumo.sim.single_track_lock` keeps apart.)"""
+    tracks: dict[tuple[str, str], set[str]] = {}
     for e in topo.edges.values():
-        tracks.setdefault(e.to_node, set()).add(e.track)
+        for nxt in topo.successors.get(e.id, ()):
+            tracks.setdefault((e.to_node, nxt), set()).add(e.track)
     signals = topo.signal_nodes()
-    return {n for n, ts in tracks.items() if len(ts) >= 2 and n in signals}
+    return {n for (n, _), ts in tracks.items() if len(ts) >= 2 and n in signals}
 
 
 class MergeLocking:
@@ -130,10 +135,14 @@ class MergeLocking:
                         changed = True
         self.s_m: dict[str, float] = {}
         """Latest route position of every running train's front, m."""
+        self.single = SingleTrackLocking(model, topo, trains, braking, self.behind_rear, lock_time_s)
+        """One direction at a time on every stretch of single track (its end of authority and SUMO
+        constraints come with this class's)."""
 
     def update(self, states: dict[str, tuple[float, float]]) -> list[tuple[str, str, str]]:
         """Advance the orders with this step's (route position, speed) of the trains running;
-        returns the new constraints (junction, train, foe) to add to SUMO."""
+        returns the new constraints (junction, train, foe) to add to SUMO.  (The stretches of
+        single track advance in ``self.single.update``, which returns its own.)"""
         a = self.model.assumptions
         dead, err, lock_s = a.dead_time_s, a.position_error_m, self.lock_time_s
         new: list[tuple[str, str, str]] = []
@@ -179,6 +188,7 @@ class MergeLocking:
     def arrived(self, gone: list[str]) -> None:
         """Trains that left the network."""
         self.gone.update(gone)
+        self.single.arrived(gone)
         for tid in gone:
             for ap in self.approaches.get(tid, ()):
                 if tid not in self.junctions[ap.node].order:
@@ -215,7 +225,7 @@ class MergeLocking:
 
         ``coupled_to``: the train's convoy predecessor when vcsumo drives it virtually coupled; the
         junction is released behind it once its front has passed it (module doc)."""
-        best = math.inf
+        best = self.single.authority_distance(tid, s_m) if self.single.active else math.inf
         if s_m > self._last_approach.get(tid, -math.inf):
             return best
         for ap in self.approaches.get(tid, ()):

@@ -49,6 +49,7 @@ from vcsumo.sim.records import CsvStream
 from vcsumo.sim.snapshot import Driver, Snapshot, StepTrains, TrainState  # noqa: F401 (Snapshot, TrainState: the drivers' types, also from here)
 from vcsumo.sim.run_results import TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, SimulationResult, collect_results
 from vcsumo.sim.interlocking import MergeLocking
+from vcsumo.sim.single_track_lock import OpposingTrains
 from vcsumo.sim.supervision import BrakingCurveSupervisor
 from vcsumo.sim.route_leaders import RouteLeaders
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
@@ -213,6 +214,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     dt = scn.step_length_s
     model = SeparationModel(scn.assumptions)
     health = HealthMonitor(model, scn.trains)
+    head_on = OpposingTrains(topo, scn.trains)  # opposing trains meeting on single track: collisions SUMO may not see
     supervisor = locking = None
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
@@ -362,8 +364,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             # ---------------------------------------------------------------- supervision: merges, caps
             if locking is not None:  # approach locking at merges (used by the supervision from the next step)
                 locking.arrived(arrived_now)
-                for sig, train, foe in locking.update({r[0]: (r[2], r[3]) for r in rows}):
+                moving = {r[0]: (r[2], r[3]) for r in rows}
+                for sig, train, foe in locking.update(moving):
                     sim.add_constraint(sig, train, sig, foe)
+                for sig, train, foe_sig, foe in locking.single.update(moving):  # one direction at a time on single track
+                    sim.add_constraint(sig, train, foe_sig, foe)
             for r in rows:
                 vid = r[0]
                 cap = caps.get(vid)
@@ -387,6 +392,11 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 collisions.append((t, collider, victim))
                 health.collision(t, collider, victim, obs[collider][2] if collider in obs else 0.0, obs[victim][2] if victim in obs else 0.0)
             touching_before = touching
+            if head_on.active:
+                for a_id, b_id in head_on.step({r[0]: r[2] for r in rows}):
+                    if (a_id, b_id) not in touching and (b_id, a_id) not in touching:  # (closing speed as the impact speed)
+                        collisions.append((t, a_id, b_id))
+                        health.collision(t, a_id, b_id, obs[a_id][2] + obs[b_id][2], 0.0)
             for vid in sim.teleports():
                 teleports.append((t, vid))
             c = clock()

@@ -7,8 +7,8 @@ per platform and track), then runs netconvert from the ``eclipse-sumo`` wheel.
 
 Builds are cached in the user cache folder (``platformdirs.user_cache_dir("vcsumo")/networks/<line>/<fingerprint>/``,
 ``$VCSUMO_CACHE`` if set), never inside the package or the source tree; the fingerprint covers the
-line file's bytes (a network: its file's and every line file's), the block-length override, the builder version and the SUMO version, so a
-changed line file is rebuilt and an unchanged one is not.  A build goes into a temporary folder
+line file's bytes (a network: its file's and every line file's), the block-length override, the builder version, the bytes of the
+modules that build it and the SUMO version, so a changed line file (or builder) is rebuilt and an unchanged one is not.  A build goes into a temporary folder
 first and is renamed into place, so concurrent runs never see half a network.
 """
 
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from vcsumo import network_topology, topology, track_graph
 from vcsumo.errors import SumoError
 from vcsumo.line import Line
 from vcsumo.network_file import Network
@@ -32,6 +33,8 @@ from vcsumo.sim.sumo_paths import sumo_binary, sumo_version
 from vcsumo.topology import Topology, build_topology
 
 BUILDER_VERSION = "5"
+_BUILDER_SOURCES = tuple(Path(m.__file__) for m in (track_graph, topology, network_topology)) + (Path(__file__),)
+"""The modules whose code decides the network (their bytes are part of the fingerprint)."""
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,8 @@ def fingerprint(line: Line, block_length_m: float | None) -> str:
     """Hash of every input file of the line (a network: its file and its lines') and the settings."""
     h = hashlib.sha256()
     for path in line.source_files():
+        h.update(path.read_bytes())
+    for path in _BUILDER_SOURCES:  # the code that builds it: worktrees of other versions share the cache folder
         h.update(path.read_bytes())
     h.update(f"|block={block_length_m}|builder={BUILDER_VERSION}|sumo={sumo_version()}".encode())
     return h.hexdigest()[:16]
