@@ -9,7 +9,9 @@ and :func:`set_verbosity` for every ``-v``/``-q`` it sees.  Levels:
 * ``-v`` (1): what vcsumo does (network reused or built, results folder written);
 * ``-vv`` (2 or more): debugging detail, each message with the name of its logger.
 
-Python warnings (:func:`warnings.warn`) become log lines of ``vcsumo.warnings`` (same handler).  SUMO's own messages do
+Python warnings (:func:`warnings.warn`) become log lines of ``vcsumo.warnings`` (same handler), each text once
+per command (a study repeats its planning for every bisection probe; libraries that reset Python's
+warning filters would otherwise show it again every time).  SUMO's own messages do
 not come here: they go into the results folder (``sumo_messages.log``, ``sumo_errors.log``).
 """
 
@@ -19,7 +21,7 @@ import logging
 import warnings
 
 ROOT_LOGGER = "vcsumo"
-_state = {"verbosity": 0}
+_state: dict = {"verbosity": 0, "shown": set()}
 
 
 def level_for(verbosity: int) -> int:
@@ -52,15 +54,20 @@ def setup_logging(verbosity: int = 0, console=None) -> None:
     for h in [h for h in lg.handlers if _is_ours(h)]:
         lg.removeHandler(h)
     lg.addHandler(handler)
+    _state["shown"] = set()
     warnings.showwarning = show_warning
     set_verbosity(verbosity)
 
 
 def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Python warnings as one log line (``vcsumo.warnings``), without the source line Python adds."""
+    """Python warnings as one log line (``vcsumo.warnings``), without the source line Python adds;
+    a text already shown since :func:`setup_logging` is not shown again."""
     text = str(message)
     if category is not UserWarning:
         text = f"{category.__name__}: {text}"
+    if text in _state["shown"]:
+        return
+    _state["shown"].add(text)
     logging.getLogger(f"{ROOT_LOGGER}.warnings").warning("%s", text)
 
 

@@ -78,6 +78,20 @@ def unhealthy_reasons(summary: dict, cut_short: bool = False) -> list[str]:
     return out if out or cut_short or summary.get("healthy", True) else ["not healthy (see summary.json)"]
 
 
+def health_line(summary: dict, reasons: list[str]) -> str:
+    """The run's health in one terminal line: the verdict, then every counter it rests on."""
+    s = summary
+    gap, margin = s.get("min_gap_m"), s.get("min_margin_m")
+    def metres(x) -> str:
+        return f"{x:.1f} m" if isinstance(x, (int, float)) and math.isfinite(x) else "– (no train ran behind another)"
+    verdict = "healthy" if s.get("healthy") and not reasons else "NOT healthy"
+    return (f"health: {verdict} — trains arrived {s.get('trains_arrived')}/{s.get('trains')}, stops served {s.get('stops_served', 0)}/"
+            f"{s.get('stops_scheduled', 0)} (skipped {s.get('stops_skipped', 0)}), min margin to the safe separation {metres(margin)}, "
+            f"min gap {metres(gap)}, gap violations {s.get('gap_violations', 0)}, collisions {s.get('collisions', 0)}, "
+            f"overspeed {s.get('overspeed_events', 0)}, braking beyond service {s.get('beyond_service_brakings', 0)}, "
+            f"authority overruns {s.get('authority_overruns', 0)}, SUMO emergency brakings {s.get('emergency_brakes', 0)}")
+
+
 def cut_short_note(summary: dict) -> str:
     """The terminal line of a run ended by ``--end-time`` before every train arrived (empty when all
     did): its summary is not healthy, for that reason alone unless another is given."""
@@ -130,18 +144,18 @@ def run(cfg: RunConfig) -> None:
     view["delay_s"] = view["arrival_delay_s"]
     print_table(view, f"{line.name} / {tt.name} / {cfg.regime}",
                 ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"], csv_path=out / "summary.csv")
-    gap = s.get("min_gap_m")
-    gap_text = f"{gap:.1f} m" if isinstance(gap, (int, float)) and math.isfinite(gap) else "– (no train ran behind another)"
-    out_console.print(f"trains arrived {s['trains_arrived']}/{s['trains']}, min gap {gap_text}, "
-                      f"gap violations {s['gap_violations']}, collisions {s['collisions']}, emergency brakes {s['emergency_brakes']}")
+    cut_short = cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s
+    reasons = unhealthy_reasons(s, cut_short=cut_short)
+    out_console.print(health_line(s, reasons))
     if driver is not None:
         loose = {fid: f.formation.reason() for fid, f in driver.followers.items() if f.formation.reason()}
         text = "; ".join(f"{fid}: {why}" for fid, why in sorted(loose.items())[:6]) + (" …" if len(loose) > 6 else "")
         out_console.print(f"convoy followers formed {s.get('followers_formed', 0)}/{len(driver.followers)}"
                           + (f" — not formed: {text} (vc_summary.json)" if loose else ""))
+        out_console.print(f"followers' safety layers: {s.get('vc_emergency_activations', 0)} emergency brake applications "
+                          f"({s.get('vc_emergency_steps', 0)} steps), {s.get('guard_interventions', 0)} separation-guard interventions, "
+                          f"{s.get('controller_infeasible_steps', 0)} infeasible controller steps, {s.get('fault_events', 0)} controller faults")
     out_console.print(f"wrote {out}")
-    cut_short = cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s
-    reasons = unhealthy_reasons(s, cut_short=cut_short)
     if cut_short and cut_short_note(s):
         out_console.print(cut_short_note(s))
     if reasons:

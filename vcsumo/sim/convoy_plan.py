@@ -91,25 +91,31 @@ def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: di
     """Warn where a follower stops with the train ahead of it but the platform cannot hold both
     ``standstill_gap_m`` apart: the follower waits outside it until the train ahead has left, so the
     convoy falls apart there (a timetable matter, not a failure).  One warning per pair of services
-    (repeats together), naming the platforms.  Returns the warnings."""
-    short: dict[tuple[str, str], dict] = {}
+    (their runs together; pairs within one service together by rolling stock), naming the platforms.  Returns the warnings."""
+    short: dict[tuple, dict] = {}
     for members in convoys:
         for k in range(1, len(members)):
             ego, ahead = members[k], members[k - 1]
             ahead_at = {x.platform for x in ahead.stops + ([ahead.final_stop] if ahead.final_stop else [])}
             gap = standstill_gap_m.get(ego.id, 0.0)
             need = ahead.stock.length_m + gap + ego.stock.length_m
+            # a pair of services (their runs together); members of one service (a unit of the capacity
+            # study) by their trains, one warning for all such pairs of the same stock
+            pair = (ahead.service, ego.service) if ahead.service != ego.service else ("", ahead.stock.name, ego.stock.name, gap)
             for x in ego.stops + ([ego.final_stop] if ego.final_stop else []):
                 if x.platform in ahead_at and 0.0 < x.platform_length_m < need - 1e-6:
-                    w = short.setdefault((ahead.service, ego.service), {"ego": ego, "ahead": ahead, "need": need, "gap": gap, "at": {}, "n": set()})
+                    w = short.setdefault(pair, {"ego": ego, "ahead": ahead, "need": need, "gap": gap, "at": {}, "n": set()})
                     w["at"].setdefault(x.station, x.platform_length_m)
                     w["n"].add(ego.id)
     out = []
-    for (lead, follow), w in short.items():
+    for pair, w in short.items():
         ego, ahead = w["ego"], w["ahead"]
+        by_train = pair[0] == ""
+        lead, follow = (ahead.id, ego.id) if by_train else pair
         at = ", ".join(f"{st} ({length:g} m)" for st, length in w["at"].items())
         n = len(w["n"])
-        out.append(f"convoy {lead}+{follow}{f' ({n} trains each)' if n > 1 else ''}: {follow} ({ego.stock.name}, {ego.stock.length_m:g} m) cannot stand "
+        more = (f" (and {n - 1} more such pairs)" if by_train else f" ({n} runs)") if n > 1 else ""
+        out.append(f"convoy {lead}+{follow}{more}: {follow} ({ego.stock.name}, {ego.stock.length_m:g} m) cannot stand "
                    f"behind {lead} ({ahead.stock.name}, {ahead.stock.length_m:g} m) in the platform of {at}: {w['need']:.0f} m needed with the "
                    f"{w['gap']:.0f} m standstill gap; it waits outside until {lead} has left (the convoy re-forms after, where both run on)")
     for msg in out:
