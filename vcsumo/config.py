@@ -246,7 +246,7 @@ def _problem(error: Any, path: str | Path | None, model: type[BaseModel] | None,
         loc = loc[1:]
     cause = (error.get("ctx") or {}).get("error")
     if isinstance(cause, FieldProblem):
-        loc += tuple(cause.field.split("."))
+        loc += tuple(int(p) if p.isdigit() else p for p in cause.field.split("."))  # "trains.2.id" -> trains[2].id
     msg = " ".join(str(error["msg"]).split())
     unknown = error["type"] == "extra_forbidden"
     if unknown:

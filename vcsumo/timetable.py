@@ -22,7 +22,7 @@ from xml.sax.saxutils import quoteattr
 
 from pydantic import Field, field_validator, model_validator
 
-from vcsumo.config import StrictModel, is_file, load_model
+from vcsumo.config import FieldProblem, StrictModel, is_file, load_model
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
@@ -143,6 +143,15 @@ class TimetableFile(StrictModel):
     services: list[Service] = Field(min_length=1)
     convoys: list[Convoy] = Field(default_factory=list)
 
+    @model_validator(mode="after")
+    def _convoy_ids_once(self) -> "TimetableFile":
+        seen: dict[str, int] = {}
+        for k, c in enumerate(self.convoys):
+            if c.id in seen:
+                raise FieldProblem(f"convoys.{k}.id", f"duplicate convoy id '{c.id}' (also convoys[{seen[c.id]}])")
+            seen[c.id] = k
+        return self
+
 
 @dataclass
 class PlannedStop:
@@ -186,8 +195,8 @@ class PlannedTrain:
 def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
     p = Path(spec)
     if p.suffix in (".yaml", ".yml"):
-        if not is_file(p):
-            raise InputError(p, None, "timetable file not found")
+        if not is_file(p):  # named by an option or a study file's field: that is blamed (the file does not exist)
+            raise InputError(None, "--timetable", f"timetable file '{p}' " + ("is a folder" if p.is_dir() else "not found"))
         return p.resolve()
     for base in (project_root() / "routes" / line.name, line.path.parent):
         cand = base / f"{spec}.yaml"
@@ -348,9 +357,13 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                                  f"'{stop.station}' (stations of {line.path})")
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
-        times = [dep0] + [x for s in planned_stops for x in (s.arrival_s, s.departure_s) if x is not None] + ([arr_sched] if arr_sched is not None else [])
-        if any(b < a for a, b in zip(times, times[1:])):
-            raise InputError(path, f, "scheduled times are not in running order")
+        times = [(f"{f}.departure", dep0)] + [(f"{f}.stops[{j}].{k}", x) for j, s in enumerate(planned_stops)
+                                              for k, x in (("arrival", s.arrival_s), ("departure", s.departure_s)) if x is not None]
+        times += [(f"{f}.arrival", arr_sched)] if arr_sched is not None else []
+        late = next(((a, b) for a, b in zip(times, times[1:]) if b[1] < a[1]), None)
+        if late is not None:
+            (fa, ta), (fb, tb) = late
+            raise InputError(path, fb, f"{format_clock(tb)} is before {fa} ({format_clock(ta)}): scheduled times are not in running order")
         if check_feasible and (arr_sched is not None or any(s.arrival_s is not None for s in planned_stops)):
             key = (tuple(route), stock.name, tuple((s.s_m, s.dwell_s) for s in planned_stops), start_pos, end_s)
             if key not in runtime_cache:
