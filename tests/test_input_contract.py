@@ -366,6 +366,9 @@ SEMANTIC = {
         ("emergency_brake_decel_mps2", 0.3, "emergency_brake_decel_mps2"),
         ("uncertainty.mass_kg.low", 600000.0, "uncertainty.mass_kg"),
         ("traction_lag_s", -1.0, "traction_lag_s"),
+        ("max_speed_kmh", 5000.0, "max_speed_kmh"),
+        ("rotating_mass_factor", 0.5, "rotating_mass_factor"),
+        ("max_jerk_mps3", 0, "max_jerk_mps3"),
     ],
     "timetable": [
         ("services[0].stops[0].dwell_s", -5, "services[0].stops[0].dwell_s"),
@@ -385,6 +388,11 @@ SEMANTIC = {
         ("services[0].id", "../evil", "services[0].id"),
         ("line", "felez_test", "line"),
         ("services[2].destination", "branch:atlantis", "services[2].destination"),
+        ("services[0].departure", "-00:05", "services[0].departure"),
+        ("services[0].departure", "6 o'clock", "services[0].departure"),
+        ("services[0].train", "nowhere.yaml", "services[0].train"),
+        ("services[0].via", ["ATLANTIS"], "services[0].via[0]"),
+        ("services[0].repeat.every_s", 1e9, "services[0].repeat.every_s"),
     ],
     "convoy": [
         ("convoys[0].services", ["UL", "GHOST"], "convoys[0].services[1]"),
@@ -428,6 +436,10 @@ SEMANTIC = {
         ("trains[1].overrides.predictor", "XX", "trains[1].overrides.predictor"),
         ("trains", _dup("trains"), "trains[2].id"),
         ("leader.driver", "warp", "leader.driver"),
+        ("leader.felez.stop_at_m", 100.0, "leader.felez.stop_at_m"),
+        ("step_s", 0, "step_s"),
+        ("seeds", [-1], "seeds[0]"),
+        ("track.straight.length_m", 50.0, "track.straight"),
         ("variants[0].set", {"trains.9.gap_m": 1.0}, "variants[0].set"),
     ],
     "study capacity": [
@@ -437,6 +449,15 @@ SEMANTIC = {
         ("convoy_sizes", [1, 0], "convoy_sizes[1]"),
         ("directions", ["sideways"], "directions[0]"),
         ("study", "warp", "study"),
+        ("block_length_m", 0, "block_length_m"),
+        ("step_length_s", 0, "step_length_s"),
+        ("vc_step_length_s", -0.2, "vc_step_length_s"),
+        ("fixed_time_s", -1, "fixed_time_s"),
+        ("workers", 0, "workers"),
+        ("assumptions", "nowhere.yaml", "assumptions"),
+        ("train", "nowhere.yaml", "train"),
+        ("out", "../elsewhere", "out"),
+        ("seed", "x", "seed"),
     ],
     "study headway": [
         ("line", "atlantis", "line"),
@@ -465,6 +486,11 @@ SEMANTIC = {
         ("timetables", "nowhere.yaml", "timetables"),
         ("line", "atlantis", "line"),
         ("delay_config", "nowhere.yaml", "delay_config"),
+        ("first_seed", -1, "first_seed"),
+        ("window_s", 0, "window_s"),
+        ("step_length_s", 5, "step_length_s"),
+        ("controllers", ["cbc"], "controllers"),
+        ("timetables", "*.nothing", "timetables"),
     ],
     "delays": [
         ("origin.probability", 1.5, "origin.probability"),
@@ -478,11 +504,18 @@ def all_mutants() -> list[Mutant]:
     out: list[Mutant] = []
     for name, kind in KINDS.items():
         out += sweep(kind) + semantic(kind, SEMANTIC.get(name, [])) + whole_file(kind)
-    ids = [m.id for m in out]
-    dup = {i for i in ids if ids.count(i) > 1}
-    for m in out:  # same label twice (a list's item and the list): number them
-        if m.id in dup:
-            m.id += f"#{ids.count(m.id)}"
+    seen: set = set()
+    unique = []
+    for m in out:  # the same file twice (a semantic mutant the sweep made already): once
+        key = (tuple(m.argv), tuple(sorted((k, v) for k, v in m.files.items() if v is not None)), tuple(k for k, v in m.files.items() if v is None))
+        if key not in seen:
+            seen.add(key)
+            unique.append(m)
+    out, count = unique, {}
+    for m in out:  # the same label twice (a list and its item): numbered
+        count[m.id] = count.get(m.id, 0) + 1
+        if count[m.id] > 1:
+            m.id += f"#{count[m.id]}"
     return out
 
 
@@ -500,7 +533,8 @@ DRIVER = textwrap.dedent(r"""
     # every module the commands import on first use (matplotlib, CasADi, libsumo), loaded once before forking
     import importlib, pkgutil, vcsumo
     for mod in pkgutil.walk_packages(vcsumo.__path__, "vcsumo."):
-        importlib.import_module(mod.name)
+        if not mod.name.endswith("__main__"):
+            importlib.import_module(mod.name)
     from vcsumo.line import load_line
     from vcsumo.network_file import load_line_or_network
     from vcsumo.sim.network import build_network
@@ -599,3 +633,59 @@ def check(m: Mutant, rc, stdout: str, stderr: str, created: set[str]) -> None:
 @pytest.mark.parametrize("m", MUTANTS, ids=[m.id for m in MUTANTS])
 def test_bad_input_is_one_line_exit_2_nothing_written(outcomes, m):
     check(m, *outcomes[m.id])
+
+
+# -------------------------------------------------------------------------------------------
+# The console script and ``python -m vcsumo`` give what the driver's children gave
+
+
+AGREE = ["line:gradients[0].permille=200.0", "stock:mass_kg=-5", "timetable:services[0].departure='25:61'", "experiment:a folder",
+         "study safety:controllers=['warp']", "delays:missing"]
+
+
+@pytest.mark.parametrize("how", ["console script", "python -m vcsumo"])
+def test_console_script_agrees_with_the_driver(outcomes, tmp_path, how):
+    exe = [str(Path(sys.executable).parent / "vcsumo")] if how == "console script" else [sys.executable, "-m", "vcsumo"]
+    picked = AGREE[::2] if how == "console script" else AGREE[1::2]
+    for mid in picked:
+        m = next(x for x in MUTANTS if x.id == mid)
+        d = tmp_path / f"m{MUTANTS.index(m):04d}"
+        _materialise(m, d)
+        before = _listing(d)
+        proc = subprocess.run(exe + m.argv, cwd=d, capture_output=True, text=True, timeout=120)
+        check(m, proc.returncode, proc.stdout, proc.stderr, _listing(d) - before)
+        rc, _, err, _ = outcomes[mid]
+        assert proc.returncode == rc
+        assert _last(proc.stderr, d) == _last(err, None), (proc.stderr, err)
+
+
+def _last(stderr: str, d: Path | None) -> str:
+    """The last error line with the mutant's folder left out (``/tmp/.../m0012/line.yaml`` -> ``line.yaml``)."""
+    last = [ln for ln in stderr.splitlines() if ln.strip()][-1]
+    return re.sub(r"(?<=[ ':])/\S*/m?\d+/", "", last)
+
+
+# -------------------------------------------------------------------------------------------
+# Ctrl-C in the middle of a run: exit 130, no results folder, no partial folder
+
+
+@pytest.mark.parametrize("argv", [["run", "--line", "felez_test", "--timetable", "test", "--regime", "mb", "--out", "r"],
+                                  ["experiment", "felez2019_mb", "--no-plots", "--out", "r"]], ids=["run", "experiment"])
+def test_ctrl_c_mid_run_leaves_nothing(tmp_path, argv):
+    import signal
+    import time
+
+    proc = subprocess.Popen([str(Path(sys.executable).parent / "vcsumo"), *argv], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob("r.partial-*")):  # the command is writing its results
+            assert proc.poll() is None and time.monotonic() < deadline, "the command ended before it wrote anything"
+            time.sleep(0.02)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in out + err and [ln for ln in err.splitlines() if ln.strip()][-1].strip() == "interrupted"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], "left behind"
