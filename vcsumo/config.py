@@ -34,6 +34,16 @@ class FieldProblem(ValueError):
         self.field = field
 
 
+def unique_ids(model: M, *lists: str) -> M:
+    """``model`` when the ``id`` of each item of each of its ``lists`` is unique, else a FieldProblem
+    naming the second item with that id (for a model validator: ``return unique_ids(self, "services")``)."""
+    for name in lists:
+        ids = [x.id for x in getattr(model, name)]
+        for k in (k for k, i in enumerate(ids) if i in ids[:k]):
+            raise FieldProblem(f"{name}.{k}.id", f"duplicate {name[:-1]} id '{ids[k]}' (also {name}[{ids.index(ids[k])}])")
+    return model
+
+
 class StrictModel(BaseModel):
     """Base for every configuration model: unknown keys are errors, objects are immutable."""
 
