@@ -18,9 +18,14 @@ Each mutant runs the command that loads its file, in its own process and folder,
 limit.  Starting the CLI costs 1–2 s of imports, so the mutants are run by one driver process that
 imports ``vcsumo.cli.main`` once and forks a child per mutant: the child changes to the mutant's
 folder, points its stdout/stderr at files and calls ``vcsumo.cli.main.main(argv)`` — the console
-script's own entry point — and its exit status is the process's.  One mutant per kind is also run
-through the installed ``vcsumo`` console script and must give the same status and error line
-(:func:`test_console_script_agrees_with_the_driver`).
+script's own entry point — and its exit status is the process's.  A few mutants of different kinds
+are also run through the installed ``vcsumo`` console script and through ``python -m vcsumo`` and
+must give the same status and error line (:func:`test_console_script_agrees_with_the_driver`).
+
+Interrupting a run (Ctrl-C, :func:`test_ctrl_c_mid_run_leaves_nothing`) leaves no folder either.
+SIGTERM/SIGKILL of batch and capacity studies and their resuming with every finished run kept
+exactly once are tests/test_campaign_faults.py and tests/test_batch.py; SUMO failing mid-run is
+tests/test_faults.py and tests/test_cli.py.
 """
 
 from __future__ import annotations
@@ -86,12 +91,8 @@ def _dotted(path: tuple) -> str:
     return out
 
 
-def _generic(path: tuple) -> str:
-    """``stations[0].km`` -> ``stations[].km`` (the pattern of :attr:`Kind.positive`)."""
-    return _dotted(tuple("" if isinstance(p, int) else p for p in path)).replace("[]", "[]")
-
-
 def _pattern(path: tuple) -> str:
+    """``('stations', 0, 'km')`` -> ``stations[].km`` (the form of :attr:`Kind.positive`, :attr:`Kind.signed`, :data:`REQUIRED`)."""
     out = ""
     for p in path:
         out += "[]" if isinstance(p, int) else ("." if out else "") + str(p)
@@ -331,11 +332,7 @@ REQUIRED = {
 }
 
 
-def _drop_first_station(data):
-    del data["stations"][0]["id"]
-
-
-def _dup(key: str, sub: str = "id"):
+def _dup(key: str):
     def f(data):
         data[key].append(copy.deepcopy(data[key][0]))
     f.__name__ = f"duplicate {key}[0]"
