@@ -692,12 +692,17 @@ def _last(stderr: str, d: Path | None) -> str:
 # Ctrl-C in the middle of a run: exit 130, no results folder, no partial folder
 
 
-@pytest.mark.parametrize("argv", [["run", "--line", "felez_test", "--timetable", "test", "--regime", "mb", "--out", "r"],
+LONG_TT = "name: long\nline: felez_test\nservices:\n  - {id: T, train: felez2019, origin: ORIG, destination: STOP, departure: 0, repeat: {count: 300, every_s: 60}}\n"
+"""300 trains a minute apart: a run of several seconds, interrupted while SUMO runs."""
+
+
+@pytest.mark.parametrize("argv", [["run", "--line", "felez_test", "--timetable", "long.yaml", "--regime", "mb", "--out", "r"],
                                   ["experiment", "felez2019_mb", "--no-plots", "--out", "r"]], ids=["run", "experiment"])
 def test_ctrl_c_mid_run_leaves_nothing(tmp_path, argv):
     import signal
     import time
 
+    (tmp_path / "long.yaml").write_text(LONG_TT)
     proc = subprocess.Popen([str(Path(sys.executable).parent / "vcsumo"), *argv], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
@@ -705,10 +710,11 @@ def test_ctrl_c_mid_run_leaves_nothing(tmp_path, argv):
             assert proc.poll() is None and time.monotonic() < deadline, "the command ended before it wrote anything"
             time.sleep(0.02)
         time.sleep(0.5)
+        assert proc.poll() is None, "the command ended before it was interrupted"
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
     assert proc.returncode == 130, err
     assert "Traceback" not in out + err and [ln for ln in err.splitlines() if ln.strip()][-1].strip() == "interrupted"
-    assert sorted(p.name for p in tmp_path.iterdir()) == [], "left behind"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["long.yaml"], "left behind"
