@@ -22,7 +22,7 @@ from xml.sax.saxutils import quoteattr
 
 from pydantic import Field, field_validator, model_validator
 
-from vcsumo.config import StrictModel, is_file, load_model, unique_ids
+from vcsumo.config import StrictModel, is_dir, is_file, load_model, unique_ids
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
@@ -191,7 +191,7 @@ def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
     p = Path(spec)
     if p.suffix in (".yaml", ".yml"):
         if not is_file(p):  # named by an option or a study file's field: that is blamed (the file does not exist)
-            raise InputError(None, "--timetable", f"timetable file '{p}' " + ("is a folder" if p.is_dir() else "not found"))
+            raise InputError(None, "--timetable", f"timetable file '{p}' " + ("is a folder" if is_dir(p) else "not found"))
         return p.resolve()
     for base in (project_root() / "routes" / line.name, line.path.parent):
         cand = base / f"{spec}.yaml"
