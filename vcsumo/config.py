@@ -34,6 +34,16 @@ class FieldProblem(ValueError):
         self.field = field
 
 
+def unique_ids(model: M, *lists: str) -> M:
+    """``model`` when the ``id`` of each item of each of its ``lists`` is unique, else a FieldProblem
+    naming the second item with that id (for a model validator: ``return unique_ids(self, "services")``)."""
+    for name in lists:
+        ids = [x.id for x in getattr(model, name)]
+        for k in (k for k, i in enumerate(ids) if i in ids[:k]):
+            raise FieldProblem(f"{name}.{k}.id", f"duplicate {name[:-1]} id '{ids[k]}' (also {name}[{ids.index(ids[k])}])")
+    return model
+
+
 class StrictModel(BaseModel):
     """Base for every configuration model: unknown keys are errors, objects are immutable."""
 
@@ -45,6 +55,12 @@ class StrictModel(BaseModel):
 _UNION_MEMBERS = frozenset({"str", "int", "float", "bool", "list", "dict", "none", "constrained-str", "constrained-float", "constrained-int"})
 
 
+def _is_member(part: Any) -> bool:
+    """Whether a location part is pydantic's name of a union member (``str``, ``function-after[...]``,
+    a model class such as ``StockSpec``), not a key of the file (keys are snake_case or ids)."""
+    return isinstance(part, str) and (part in _UNION_MEMBERS or "[" in part or re.fullmatch(r"[A-Z][a-z0-9]+(?:[A-Z][a-z0-9]*)+", part) is not None)
+
+
 def field_path(loc: tuple[Any, ...], keep_last: bool = False) -> str:
     """Render a pydantic error location as ``stations[2].km``.
 
@@ -53,7 +69,7 @@ def field_path(loc: tuple[Any, ...], keep_last: bool = False) -> str:
     """
     out = ""
     for i, part in enumerate(loc):
-        if isinstance(part, str) and ("[" in part or part in _UNION_MEMBERS) and not (keep_last and i == len(loc) - 1):
+        if _is_member(part) and not (keep_last and i == len(loc) - 1):
             continue  # pydantic's name of a union member ("str", "function-after[...]"), not a key
         if isinstance(part, int):
             out += f"[{part}]"
@@ -234,9 +250,40 @@ def validation_error(exc: ValidationError, path: str | Path | None, model: type[
     (the tag of a discriminated union, e.g. ``capacity`` in ``('capacity', 'convoy_sizes', 1)``).
     ``rename``: the name shown for a location instead of its field path (a command-line option).
     """
-    errors = exc.errors()
+    errors = _one_per_union(exc.errors())
     problems = [_problem(e, path, model, skip, rename) for e in errors[:MAX_PROBLEMS_SHOWN]]
     return problems[0] if len(problems) == 1 else InputProblems(problems)
+
+
+def _one_per_union(errors: list[Any]) -> list[Any]:
+    """A value that fits no member of a union gets one error per member from pydantic; keep the
+    errors of the members whose type it has (a mapping's problems, a string's format), or when it
+    has none of their types, one error: "Input should be a valid string or a valid number"."""
+    out: list[Any] = []
+    groups: dict[tuple, list[Any]] = {}
+    for e in errors:
+        loc = tuple(e["loc"])
+        i = next((i for i, p in enumerate(loc) if _is_member(p)), None)
+        if i is None:
+            out.append(e)
+            continue
+        if loc[:i] not in groups:
+            groups[loc[:i]] = []
+            out.append(loc[:i])  # the group's place in the order
+        groups[loc[:i]].append(e)
+    merged = []
+    for item in out:
+        if isinstance(item, dict):
+            merged.append(item)
+            continue
+        errs = groups[item]
+        fitting = [e for e in errs if not e["type"].endswith(("_type", "_parsing"))]
+        if fitting or len(errs) == 1:
+            merged += fitting or errs
+            continue
+        wanted = list(dict.fromkeys(str(e["msg"]).split(",")[0].removeprefix("Input should be ") for e in errs))
+        merged.append(dict(errs[0], loc=item, type="union_type", msg="Input should be " + " or ".join(wanted)))
+    return merged
 
 
 def _problem(error: Any, path: str | Path | None, model: type[BaseModel] | None, skip: tuple[str, ...],
@@ -246,7 +293,7 @@ def _problem(error: Any, path: str | Path | None, model: type[BaseModel] | None,
         loc = loc[1:]
     cause = (error.get("ctx") or {}).get("error")
     if isinstance(cause, FieldProblem):
-        loc += tuple(cause.field.split("."))
+        loc += tuple(int(p) if p.isdigit() else p for p in cause.field.split("."))  # "trains.2.id" -> trains[2].id
     msg = " ".join(str(error["msg"]).split())
     unknown = error["type"] == "extra_forbidden"
     if unknown:

@@ -397,4 +397,13 @@ def load_network(spec: str | Path) -> Network:
 
 def load_line_or_network(spec: str | Path) -> Line:
     """``--line``: a line (shipped name or line file) or a network of lines (shipped name or network file)."""
-    return load_network(spec) if network_path(spec) is not None else load_line(spec)
+    from vcsumo.rolling_stock import rolling_stock_path
+
+    line = load_network(spec) if network_path(spec) is not None else load_line(spec)
+    own = line.spec.default_train if isinstance(line, Network) else line.data.default_train
+    if own:  # a train the file names must exist, even for a command that does not run it (build-network)
+        try:
+            rolling_stock_path(own)
+        except InputError as exc:
+            raise InputError(line.path, "default_train", exc.message) from None
+    return line

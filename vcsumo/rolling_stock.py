@@ -237,15 +237,23 @@ def shipped_rolling_stock() -> list[str]:
     return sorted(p.stem for p in rolling_stock_dir().glob("*.yaml"))
 
 
-def load_rolling_stock(spec: str | Path) -> RollingStock:
-    """Load a train type by shipped name (``etr1000``) or by path to a YAML file."""
+def rolling_stock_path(spec: str | Path) -> Path:
+    """The file of a train type named by shipped name (``etr1000``) or path; an unknown name or a
+    missing file is an InputError without a file (the one who named it is to blame: the caller adds
+    its file and field)."""
     path = Path(spec)
     if path.suffix not in (".yaml", ".yml"):
         path = rolling_stock_dir() / f"{spec}.yaml"
         if not is_file(path):
             raise InputError(None, "train", f"unknown train '{spec}' (shipped: {', '.join(shipped_rolling_stock())}; or give a path to a .yaml file)")
-    elif not is_file(path):  # the one who named it is to blame (the caller adds its file and field)
+    elif not is_file(path):
         raise InputError(None, "train", f"train file '{spec}' not found")
+    return path
+
+
+def load_rolling_stock(spec: str | Path) -> RollingStock:
+    """Load a train type by shipped name (``etr1000``) or by path to a YAML file."""
+    path = rolling_stock_path(spec)
     stock = load_model(RollingStock, path)
     if path.parent.resolve() == rolling_stock_dir().resolve() and stock.name != path.stem:
         raise InputError(path, "name", f"name '{stock.name}' must match the file name '{path.stem}'")

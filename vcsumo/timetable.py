@@ -22,7 +22,7 @@ from xml.sax.saxutils import quoteattr
 
 from pydantic import Field, field_validator, model_validator
 
-from vcsumo.config import StrictModel, is_file, load_model
+from vcsumo.config import StrictModel, is_dir, is_file, load_model, unique_ids
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
@@ -143,6 +143,10 @@ class TimetableFile(StrictModel):
     services: list[Service] = Field(min_length=1)
     convoys: list[Convoy] = Field(default_factory=list)
 
+    @model_validator(mode="after")
+    def _ids_once(self) -> "TimetableFile":
+        return unique_ids(self, "services", "convoys")
+
 
 @dataclass
 class PlannedStop:
@@ -186,8 +190,8 @@ class PlannedTrain:
 def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
     p = Path(spec)
     if p.suffix in (".yaml", ".yml"):
-        if not is_file(p):
-            raise InputError(p, None, "timetable file not found")
+        if not is_file(p):  # named by an option or a study file's field: that is blamed (the file does not exist)
+            raise InputError(None, "--timetable", f"timetable file '{p}' " + ("is a folder" if is_dir(p) else "not found"))
         return p.resolve()
     for base in (project_root() / "routes" / line.name, line.path.parent):
         cand = base / f"{spec}.yaml"
@@ -276,14 +280,10 @@ def _stock_spec(train: str, timetable_path: Path) -> str | Path:
 def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: float = 0.5, check_feasible: bool = True) -> list[PlannedTrain]:
     """Resolve every service into planned trains (repeats expanded), checking it against the line."""
     trains: list[PlannedTrain] = []
-    seen: set[str] = set()
     stocks: dict[str, RollingStock] = {}
     runtime_cache: dict[tuple, float] = {}
     for i, svc in enumerate(tt.services):
         f = f"services[{i}]"
-        if svc.id in seen:
-            raise InputError(path, f"{f}.id", f"duplicate service id '{svc.id}'")
-        seen.add(svc.id)
         if svc.train not in stocks:
             try:
                 stocks[svc.train] = load_rolling_stock(_stock_spec(svc.train, path))
@@ -330,8 +330,6 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             arr = parse_clock(call.arrival) if call.arrival is not None else None
             dep = parse_clock(call.departure) if call.departure is not None else None
             dwell = call.dwell_s if call.dwell_s is not None else st.dwell_s
-            if arr is not None and dep is not None and dep < arr:
-                raise InputError(path, f"{fs}.departure", "scheduled departure is before the scheduled arrival")
             planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep, plat.end_pos_m - plat.start_pos_m))
         end_s = float(prof.starts_m[-1] + end_pos)
         final = None
@@ -348,9 +346,10 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                                  f"'{stop.station}' (stations of {line.path})")
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
-        times = [dep0] + [x for s in planned_stops for x in (s.arrival_s, s.departure_s) if x is not None] + ([arr_sched] if arr_sched is not None else [])
-        if any(b < a for a, b in zip(times, times[1:])):
-            raise InputError(path, f, "scheduled times are not in running order")
+        times = [(f"{f}.departure", dep0)] + [(f"{f}.stops[{j}].{k}", x) for j, s in enumerate(planned_stops) for k, x in (("arrival", s.arrival_s),
+                 ("departure", s.departure_s)) if x is not None] + ([(f"{f}.arrival", arr_sched)] if arr_sched is not None else [])
+        for (fa, ta), (fb, tb) in ((a, b) for a, b in zip(times, times[1:]) if b[1] < a[1]):  # the first time earlier than the one before
+            raise InputError(path, fb, f"{format_clock(tb)} is before {fa} ({format_clock(ta)}): scheduled times are not in running order")
         if check_feasible and (arr_sched is not None or any(s.arrival_s is not None for s in planned_stops)):
             key = (tuple(route), stock.name, tuple((s.s_m, s.dwell_s) for s in planned_stops), start_pos, end_s)
             if key not in runtime_cache:
@@ -399,7 +398,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         raise InputError(path, "services", f"train id '{dup}' occurs twice after expanding repeats")
     for c_i, cv in enumerate(tt.convoys):
         for s_i, sid in enumerate(cv.services):
-            if sid not in seen:
+            if sid not in {s.id for s in tt.services}:
                 raise InputError(path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{sid}', which does not exist")
         check_convoy_times(trains, cv.services, path, f"convoys[{c_i}]", dt)
     for msg in single_track_meetings(trains, topo, dt):  # they would stand facing each other

@@ -57,8 +57,8 @@ def experiment_cmd(file: str, variants: str | None, seeds: str | None, no_plots:
 
     path, _, runs = load_experiment(file)
     seed_list = _csv(seeds, int)
-    if seed_list is not None and (not seed_list or any(s < 0 for s in seed_list)):
-        raise InputError(None, "--seeds", "give one or more seeds ≥ 0")
+    if seed_list is not None and (not seed_list or any(not 0 <= s < 2**32 for s in seed_list)):
+        raise InputError(None, "--seeds", "give one or more seeds, 0–2³²−1")
     names = _csv(variants)
     plan_runs(path, names, seed_list, check=True)  # every run's set-up is built once: problems before anything is written
     out = out or default_out("experiment", runs[0][1].name)

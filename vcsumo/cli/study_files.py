@@ -122,9 +122,18 @@ class SafetyStudy(StudyFile, SafetyCampaign, CommandConfig):
     def inputs(self) -> None:
         from vcsumo.line import load_line
 
+        from vcsumo.signalling.assumptions import load_assumptions
+
         for i, spec in enumerate(self.lines):
             with self.blame(f"lines[{i}]"):
                 load_line(spec)
+        for i, spec in enumerate(self.controllers):
+            check_controller_spec(self, f"controllers[{i}]", spec)
+        for i, spec in enumerate(self.rolling_stock):
+            load_train(self, f"rolling_stock[{i}]", spec)
+        if self.assumptions:
+            with self.blame("assumptions"):
+                load_assumptions(self.assumptions)
         if self.cbf_config:
             check_controller_spec(self, "cbf_config", f"cbf-cbc:{self.cbf_config}")
 

@@ -161,9 +161,14 @@ def plant_params(stock: RollingStock, kind: str, rng: np.random.Generator) -> Tr
 # Controller parameters with overrides
 
 
-def _with_overrides(model: type[BaseModel], spec: str | None, default: str, overrides: dict[str, Any], base_dir, field_name: str, path) -> BaseModel:
-    """Load a parameter file and replace fields, validated like the file (errors name ``field_name``)."""
-    file = resolve_params(spec, default, field_name, base_dir)
+def _with_overrides(model: type[BaseModel], spec: str | None, default: str, overrides: dict[str, Any], base_dir, field_name: str, path,
+                    spec_field: str | None = None) -> BaseModel:
+    """Load a parameter file and replace fields, validated like the file (errors name ``field_name``;
+    a parameter file that is not found names ``spec_field``, the field that gave it)."""
+    try:
+        file = resolve_params(spec, default, spec_field or field_name, base_dir)
+    except InputError as exc:
+        raise InputError(path, exc.field, exc.message) from None
     raw = read_yaml(file)
     if not isinstance(raw, dict):
         return parse_model(model, raw, file)
@@ -185,6 +190,14 @@ class FollowerSetup:
     files: list[Path] = field(default_factory=list)
 
 
+def _resolve(spec: str, default: str, field_name: str, base_dir, path) -> Path:
+    """A parameter file named in the experiment file at ``path`` (a missing one names the file and field)."""
+    try:
+        return resolve_params(spec, default, field_name, base_dir)
+    except InputError as exc:
+        raise InputError(path, exc.field, exc.message) from None
+
+
 def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile: RouteProfile, base_dir, path) -> FollowerSetup:
     """Follower k's registry stack (nominal → supervisor → guard → fault stage) with the file's parameters."""
     tr = exp.trains[k]
@@ -202,7 +215,8 @@ def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile:
         if model is None:
             raise InputError(path, f"{fld}.overrides", f"parameters of controller family '{cs.family}' cannot be overridden here (only {', '.join(PARAM_MODELS)})")
         over = dict(tr.overrides)
-        nominal = _with_overrides(model, spec, entry.default_params, over, base_dir, f"{fld}.overrides", path)
+        nominal = _with_overrides(model, spec, entry.default_params, over, base_dir, f"{fld}.overrides", path,
+                                  f"{fld}.params" if tr.params else f"{fld}.controller")
         if tr.horizon_steps is not None:
             if isinstance(nominal, CruiseConfig):
                 nominal = nominal.model_copy(update={"horizon_s": tr.horizon_steps * nominal.mpc_step_s})
@@ -211,16 +225,16 @@ def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile:
             else:
                 raise InputError(path, f"{fld}.horizon_steps", f"controller family '{cs.family}' has no horizon")
     elif spec is not None:
-        nominal = resolve_params(spec, entry.default_params or "", f"{fld}.params", base_dir)
+        nominal = _resolve(spec, entry.default_params or "", f"{fld}.params" if tr.params else f"{fld}.controller", base_dir, path)
         files.append(nominal)
     sup: Any = None
     if cs.supervisor is not None or cs.family == "cruise":
         sup_name = cs.supervisor or "cbf"
         if tr.supervisor_overrides:
             sup = _with_overrides(SUPERVISOR_MODELS[sup_name], tr.supervisor_params, SUPERVISORS[sup_name].default_params, tr.supervisor_overrides, base_dir,
-                                  f"{fld}.supervisor_overrides", path)
+                                  f"{fld}.supervisor_overrides", path, f"{fld}.supervisor_params")
         elif tr.supervisor_params is not None:
-            sup = resolve_params(tr.supervisor_params, SUPERVISORS[sup_name].default_params, f"{fld}.supervisor_params", base_dir)
+            sup = _resolve(tr.supervisor_params, SUPERVISORS[sup_name].default_params, f"{fld}.supervisor_params", base_dir, path)
             files.append(sup)
     ctx = StackContext(ego=stocks[k], predecessor=stocks[k - 1], step_s=exp.step_s, profile=profile, params=nominal, supervisor_params=sup,
                        guard=tr.guard, base_dir=base_dir, field=f"{fld}.controller", ego_id=tr.id, predecessor_id=exp.trains[k - 1].id,
@@ -339,6 +353,10 @@ def build_setup(exp: Experiment, seed: int, base_dir: Path | None = None, path=N
             raise InputError(path, f"trains[{k}]", f"starts at {s:.1f} m, outside the track (its rear must be on it: {stocks[k].length_m:.0f}–{profile.length_m:.0f} m)")
         if k and s > positions[k - 1] - stocks[k - 1].length_m:
             raise InputError(path, f"trains[{k}]", f"starts at {s:.1f} m, overlapping the train ahead (its rear at {positions[k - 1] - stocks[k - 1].length_m:.1f} m)")
+    stop_at = exp.leader.felez.stop_at_m if exp.leader.driver == "felez_mpc" and exp.leader.felez is not None else None
+    if stop_at is not None and not positions[0] < stop_at <= profile.length_m:
+        raise InputError(path, "leader.felez.stop_at_m", f"{stop_at:g} m is not ahead of the leader on the track (the leader starts at {positions[0]:.1f} m, "
+                         f"the track ends at {profile.length_m:.1f} m)")
     trains = []
     n = len(exp.trains)
     for k, t in enumerate(exp.trains):

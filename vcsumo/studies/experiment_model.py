@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, model_validator
 
@@ -251,7 +251,8 @@ class Experiment(StrictModel):
     label: str = Field(default="default", pattern=NAME, description="Name of the run this file describes (beside its variants)")
     step_s: float = Field(ge=0.001, le=10, description="Integration and control step, s")
     duration_s: float = Field(gt=0, le=864000, description="Simulated time, s")
-    seeds: list[int] = Field(default_factory=lambda: [1], min_length=1, max_length=1000, description="One run per seed (plants drawn in the box and the channel)")
+    seeds: list[Annotated[int, Field(ge=0, le=2**32 - 1)]] = Field(default_factory=lambda: [1], min_length=1, max_length=1000,
+                                                                  description="One run per seed, 0–2³²−1 (plants drawn in the box and the channel)")
     record_every: int = Field(default=1, ge=1, le=100000, description="Record every k-th step in trajectories.csv (plus every packet and emergency step)")
     stop_when_at_rest_s: float | None = Field(default=None, gt=0, le=86400, description="End the run once every train has been at rest this long after moving, s")
     known_at_start: bool = Field(default=False, description="Followers know their predecessor's state at t = 0")
