@@ -79,3 +79,17 @@ def test_a_train_that_cannot_start_on_a_grade_fails_the_case(tmp_path):
     down = route_setup(line, net, stock, "down", 0.5, model)
     run = leader_run(down, stock, Case("down", "fbs", None, 1, "non-stop"), 0.5, model)
     assert run["s_m"].iloc[-1] > down.full.length_m - 200.0
+
+
+def test_the_headway_study_says_a_train_cannot_start_on_a_grade(tmp_path):
+    """The same in ``vcsumo study headway`` (it ran 3 minutes without a result before it was stopped)."""
+    from vcsumo.studies.headway import prepare_case
+
+    line = load_line(write(tmp_path / "freightway.yaml", LINE.replace("GRADE", "25.0")))
+    stock = load_rolling_stock(str(write(tmp_path / "freight.yaml", FREIGHT)))
+    net = build_network(line)
+    model = SeparationModel(load_assumptions())
+    with pytest.raises(VcsumoError, match=r"cannot start on the 25.0 ‰ grade .* it needs 510 kN, its tractive effort is 400 kN \(up\)"):
+        prepare_case(line, net, stock, "up", 0.5, 2, model)
+    trains, prof, run, _, _ = prepare_case(line, net, stock, "down", 0.5, 2, model)
+    assert run["s_m"].iloc[-1] > prof.length_m - 200.0

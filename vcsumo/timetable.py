@@ -27,7 +27,7 @@ from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.running_time import Stop, steepest_start, time_at, unhindered_run
+from vcsumo.running_time import Stop, stall_problem, time_at, unhindered_run
 from vcsumo.single_track import single_track_meetings
 from vcsumo.topology import Topology
 from vcsumo.track_graph import reachable
@@ -350,11 +350,8 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                  ("departure", s.departure_s)) if x is not None] + ([(f"{f}.arrival", arr_sched)] if arr_sched is not None else [])
         for (fa, ta), (fb, tb) in ((a, b) for a, b in zip(times, times[1:]) if b[1] < a[1]):  # the first time earlier than the one before
             raise InputError(path, fb, f"{format_clock(tb)} is before {fa} ({format_clock(ta)}): scheduled times are not in running order")
-        s_hard, g_hard, a_hard = steepest_start(stock.params(), prof, start_pos, end_s)
-        if a_hard <= 0.0:  # it would stall there (or never depart): no run of it can be healthy
-            need_kn = (stock.max_traction_n - a_hard * stock.mass_kg * stock.rotating_mass_factor) / 1000.0
-            raise InputError(path, f"{f}.train", f"infeasible: train {stock.name} cannot start on the {1000 * g_hard:.1f} ‰ grade under it at {line.name} "
-                             "{0} km {1:.3f}: it needs {2:.0f} kN, its tractive effort is {3:.0f} kN".format(*prof.km_at(s_hard), need_kn, stock.max_traction_n / 1000.0))
+        if stall := stall_problem(stock.params(), prof, start_pos, end_s):  # it would stand there for ever (or never depart): no run of it can be healthy
+            raise InputError(path, f"{f}.train", f"infeasible: train {stock.name} {stall}")
         if check_feasible and (arr_sched is not None or any(s.arrival_s is not None for s in planned_stops)):
             key = (tuple(route), stock.name, tuple((s.s_m, s.dwell_s) for s in planned_stops), start_pos, end_s)
             if key not in runtime_cache:

@@ -13,7 +13,7 @@ from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.running_time import Stop, speed_at, steepest_start, unhindered_run
+from vcsumo.running_time import Stop, speed_at, stall_problem, unhindered_run
 from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.sim.network import BuiltNetwork
@@ -123,10 +123,9 @@ def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float
     short = [f"'{st}' ({length:g} m)" for st, _, _, _, length in stops if length + 1e-6 < stock.length_m]
     if short:  # as a timetable's stop there is refused (vcsumo.timetable)
         raise VcsumoError(f"{case.pattern}: train {stock.name} is {stock.length_m:g} m long, longer than the platform of {', '.join(short)}")
-    s_hard, g_hard, a_hard = steepest_start(stock.params(), setup.full, min(stock.length_m + 1.0, setup.release_s), setup.full.length_m)
-    if a_hard <= 0.0:  # it would stall there: no probe could be healthy
-        raise VcsumoError(f"infeasible: train {stock.name} cannot start on the {1000 * g_hard:.1f} ‰ grade under it at km {setup.full.km_at(s_hard)[1]:.3f} "
-                          f"({setup.direction}): its tractive effort is {stock.max_traction_n / 1000.0:.0f} kN")
+    stall = stall_problem(stock.params(), setup.full, min(stock.length_m + 1.0, setup.release_s), setup.full.length_m)
+    if stall:  # it would stand there for ever: no probe could be healthy
+        raise VcsumoError(f"infeasible: train {stock.name} {stall} ({setup.direction})")
     return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops],
                           stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
 
