@@ -269,8 +269,7 @@ def _reach_hint(topo: Topology, starts: list[tuple[str, float]], line: Line, ori
 
 
 def _stock_spec(train: str, timetable_path: Path) -> str | Path:
-    """A service's rolling stock: a shipped name, or a file path; a relative path is taken next to the
-    timetable file when there is such a file there (as a network file's line files), else as given."""
+    """A service's rolling stock: a shipped name, or a file path; a relative path is taken next to the timetable file when there is such a file there (as a network file's line files), else as given."""
     p = Path(train)
     if p.suffix in (".yaml", ".yml") and not p.is_absolute() and is_file(timetable_path.parent / p):
         return timetable_path.parent / p
@@ -342,8 +341,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.end_pos_m - first.start_pos_m)))
         for where, stop in platforms:
             if stop.platform_length_m + 1e-6 < stock.length_m:
-                raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of "
-                                 f"'{stop.station}' (stations of {line.path})")
+                raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of '{stop.station}' (stations of {line.path})")
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
         times = [(f"{f}.departure", dep0)] + [(f"{f}.stops[{j}].{k}", x) for j, s in enumerate(planned_stops) for k, x in (("arrival", s.arrival_s),
