@@ -93,3 +93,26 @@ def test_the_headway_study_says_a_train_cannot_start_on_a_grade(tmp_path):
         prepare_case(line, net, stock, "up", 0.5, 2, model)
     trains, prof, run, _, _ = prepare_case(line, net, stock, "down", 0.5, 2, model)
     assert run["s_m"].iloc[-1] > prof.length_m - 200.0
+
+
+def test_convoy_members_start_outside_their_safe_separation_on_a_grade(tmp_path):
+    """A VC convoy of two freight trains released on a 25 ‰ climb started 16 m inside the follower's
+    safe separation (the start gap was the level-track one): every probe had 2 gap violations and
+    the case was reported as 'no sustainable headway found (trains hindered at every interval)'."""
+    from vcsumo.signalling.separation import RelativeBraking
+    from vcsumo.studies.capacity_route import initial_convoy_gap
+
+    # the climb from km 3.0; the units are released on it at km 5.0, the follower 0.7 km + the gap behind
+    text = LINE.replace("GRADE", "25.0").replace("{from_km: 5.0, to_km: 6.5", "{from_km: 3.0, to_km: 7.5") + "headway: {measuring_points_km: [6.0], release_km: {up: 5.0, down: 1.0}}\n"
+    line = load_line(write(tmp_path / "freightway.yaml", text))
+    stock = load_rolling_stock(str(write(tmp_path / "freight.yaml", FREIGHT.replace("max_traction_n: 400000.0", "max_traction_n: 800000.0"))))
+    net = build_network(line)
+    model = SeparationModel(load_assumptions())
+    setup = route_setup(line, net, stock, "up", 0.2, model)
+    gap = initial_convoy_gap(model, stock, setup.v0, setup, 2)
+    s_l = setup.release_s
+    s_f = s_l - stock.length_m - gap
+    # the health monitor's rule for a VC follower, where the two start
+    need = RelativeBraking(model, stock, stock, setup.full).required_gap(s_f, setup.depart_speed(s_f), s_l, setup.depart_speed(s_l), model.dead_time_s)
+    assert gap >= need
+    assert model.vc_gap(stock, stock, setup.v0) + 20.0 < need  # the level-track start gap was inside it
