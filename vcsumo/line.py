@@ -357,4 +357,8 @@ def load_line(spec: str | Path) -> Line:
     if problems:
         errors = [InputError(path, field, msg) for field, msg in problems[:MAX_PROBLEMS_SHOWN]]
         raise errors[0] if len(errors) == 1 else InputProblems(errors)
+    train = Path(data.default_train or "")
+    if train.suffix in (".yaml", ".yml") and not train.is_absolute() and is_file(path.parent / train):
+        # a train file named by a relative path is the one next to the line file (as a timetable's trains), wherever vcsumo runs from
+        data = data.model_copy(update={"default_train": str(path.parent / train)})
     return Line(data, path)

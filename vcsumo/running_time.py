@@ -167,3 +167,34 @@ def speed_at(run: pd.DataFrame, s_m: float) -> float:
     if i >= len(s_arr):
         return math.nan
     return float(run["speed_mps"].iloc[i])
+
+
+def steepest_start(p: TrainParams, profile: RouteProfile, s0: float, s1: float) -> tuple[float, float, float]:
+    """Where between front positions s0 and s1 the train starts hardest from a stand:
+    ``(front position m, gradient under the train rise/run, acceleration m/s² at full traction)``.
+
+    The gradient is averaged over the train (SUMO's slope), so the steepest start has an end of the
+    train at a gradient change. An acceleration ≤ 0 means the train cannot start there: stopped at
+    a signal or a station on that grade it stands for ever, and reaching it at speed it slows to a
+    stand (at 0 m/s the traction is the largest and the resistance the smallest it will be).
+    """
+    ends = [s0, s1] + [x + d for x in profile.starts_m[1:] for d in (0.0, p.length_m)]
+    worst = (s0, 0.0, math.inf)
+    for s in ends:
+        if s0 <= s <= s1:
+            g = profile.mean_gradient(s, p.length_m)
+            a = float(max_acceleration(p, 0.0, g))
+            if a < worst[2]:
+                worst = (s, g, a)
+    return worst
+
+
+def stall_problem(p: TrainParams, profile: RouteProfile, s0: float, s1: float) -> str | None:
+    """Why the train cannot run its front from s0 to s1 — it cannot start on a grade under it (it
+    would stall there: :func:`steepest_start`) — as words, or None when it can."""
+    s, g, a = steepest_start(p, profile, s0, s1)
+    if a > 0.0:
+        return None
+    section, km = profile.km_at(s)
+    need_kn = (p.max_traction_n - a * p.mass_kg * p.rotating_mass_factor) / 1000.0
+    return f"cannot start on the {1000 * g:.1f} ‰ grade under it at {section} km {km:.3f}: it needs {need_kn:.0f} kN, its tractive effort is {p.max_traction_n / 1000.0:.0f} kN"

@@ -27,7 +27,7 @@ from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.running_time import Stop, time_at, unhindered_run
+from vcsumo.running_time import Stop, stall_problem, time_at, unhindered_run
 from vcsumo.single_track import single_track_meetings
 from vcsumo.topology import Topology
 from vcsumo.track_graph import reachable
@@ -269,8 +269,7 @@ def _reach_hint(topo: Topology, starts: list[tuple[str, float]], line: Line, ori
 
 
 def _stock_spec(train: str, timetable_path: Path) -> str | Path:
-    """A service's rolling stock: a shipped name, or a file path; a relative path is taken next to the
-    timetable file when there is such a file there (as a network file's line files), else as given."""
+    """A service's rolling stock: a shipped name, or a file path; a relative path is taken next to the timetable file when there is such a file there (as a network file's line files), else as given."""
     p = Path(train)
     if p.suffix in (".yaml", ".yml") and not p.is_absolute() and is_file(timetable_path.parent / p):
         return timetable_path.parent / p
@@ -342,14 +341,15 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.end_pos_m - first.start_pos_m)))
         for where, stop in platforms:
             if stop.platform_length_m + 1e-6 < stock.length_m:
-                raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of "
-                                 f"'{stop.station}' (stations of {line.path})")
+                raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of '{stop.station}' (stations of {line.path})")
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
         times = [(f"{f}.departure", dep0)] + [(f"{f}.stops[{j}].{k}", x) for j, s in enumerate(planned_stops) for k, x in (("arrival", s.arrival_s),
                  ("departure", s.departure_s)) if x is not None] + ([(f"{f}.arrival", arr_sched)] if arr_sched is not None else [])
         for (fa, ta), (fb, tb) in ((a, b) for a, b in zip(times, times[1:]) if b[1] < a[1]):  # the first time earlier than the one before
             raise InputError(path, fb, f"{format_clock(tb)} is before {fa} ({format_clock(ta)}): scheduled times are not in running order")
+        if stall := stall_problem(stock.params(), prof, start_pos, end_s):  # it would stand there for ever (or never depart): no run of it can be healthy
+            raise InputError(path, f"{f}.train", f"infeasible: train {stock.name} {stall}")
         if check_feasible and (arr_sched is not None or any(s.arrival_s is not None for s in planned_stops)):
             key = (tuple(route), stock.name, tuple((s.s_m, s.dwell_s) for s in planned_stops), start_pos, end_s)
             if key not in runtime_cache:

@@ -73,4 +73,7 @@ def experiment_cmd(file: str, variants: str | None, seeds: str | None, no_plots:
     for r in results:
         if not r.healthy:
             out_console.print(f"{r.run}: NOT HEALTHY (a collision, or the true barrier above zero: see measurements.csv)", markup=False, highlight=False)
+        stop = r.measurements[r.measurements["quantity"] == "leader_stop_time_s"]["value"]
+        if len(stop) and stop.isna().all():
+            out_console.print(f"{r.run}: the leader did not stop within the run: no stop measured", markup=False, highlight=False)
     out_console.print(f"wrote {out}")

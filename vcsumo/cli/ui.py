@@ -134,7 +134,8 @@ def _row_failed(row: pd.Series) -> str:
 
 
 def _row_key(row: pd.Series, cols: list[str], numeric: set[str]) -> str:
-    parts = [str(row[c]) for c in cols if c not in numeric and not _missing(row[c]) and str(row[c]).strip()]
+    # (yes/no columns — healthy, convoy_formed — name no case: "False False" said nothing)
+    parts = [str(row[c]) for c in cols if c not in numeric and not _missing(row[c]) and str(row[c]).strip() and str(row[c]) not in ("True", "False")]
     if "convoy_size" in row.index and not _missing(row["convoy_size"]) and row.get("regime") == "vc":
         parts.append(f"n={int(row['convoy_size'])}")
     return " ".join(parts)

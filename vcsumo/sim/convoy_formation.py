@@ -4,9 +4,9 @@ A follower is **formed** while it runs (above 5 m/s) within 10 % + 10 m of its c
 (the spacing its stack keeps at its speed: :meth:`vcsumo.sim.vc_driver.VCDriver.coupled_spacing_m`).
 Time it runs farther behind is put down to one cause, checked in this order:
 
-* ``at the line's permitted speed`` — it already runs at the limit under its whole train (equal
-  trains at the same line speed cannot close a gap opened behind a speed restriction, a station or
-  a descent);
+* ``at its permitted speed`` — it already runs at the limit under its whole train or at its own
+  top speed (equal trains at the same line speed cannot close a gap opened behind a speed
+  restriction, a station or a descent; a slower train cannot keep up with a faster one);
 * ``at full traction`` — its controller asks for all the traction the train has (a leader of the
   same type running at its own performance limit, e.g. power-limited on a climb, cannot be caught);
 * ``held by the separation guard`` — the guard commanded less than the controller asked;
@@ -28,14 +28,14 @@ FORMED_ABS_M = 10.0
 MOVING_MPS = 5.0
 """Formation is judged only above this speed (standing and starting trains keep standstill gaps), m/s."""
 AT_LIMIT_MPS = 0.5
-"""A follower within this of its permitted line speed runs at the limit, m/s."""
+"""A follower within this of its permitted speed (the line's under the train, at most its own top speed) runs at the limit, m/s."""
 
 def within_spacing(gap_m: float, spacing_m: float) -> bool:
     """Whether a follower ``gap_m`` behind its predecessor is formed at a ``spacing_m`` spacing."""
     return gap_m <= (1.0 + FORMED_REL) * spacing_m + FORMED_ABS_M
 
 
-REASONS = ("at the line's permitted speed", "at full traction", "held by the separation guard", "the controller did not close it")
+REASONS = ("at its permitted speed", "at full traction", "held by the separation guard", "the controller did not close it")
 
 
 @dataclass

@@ -21,6 +21,7 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass, field
 
+from vcsumo.errors import VcsumoError
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, strongest_decel
 from vcsumo.timetable import PlannedTrain
 
@@ -68,8 +69,12 @@ class HealthMonitor:
         self.plans = {t.id: t for t in trains}
         self.trains: dict[str, TrainHealth] = {t.id: TrainHealth() for t in trains}
         shared: dict[tuple[int, int], RouteBraking] = {}  # one per rolling stock and route (a service's trains share them)
-        self.braking = {t.id: shared.get((id(t.stock), id(t.profile))) or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile))
-                        for t in trains}
+        self.braking = {}
+        for t in trains:
+            try:
+                self.braking[t.id] = shared.get((id(t.stock), id(t.profile))) or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile))
+            except ValueError as exc:  # its brake does not hold it on a descent of its route: no run of it can be safe
+                raise VcsumoError(f"infeasible: train {t.id}: {exc} of its route under the assumption set '{model.assumptions.name}'") from None
         self.relative: dict[tuple[str, str], RelativeBraking] = {}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
         self.collision_rows: list[tuple] = []

@@ -410,7 +410,7 @@ class VCDriver:
                     plan = self.trains[fid]
                     full = min(p.max_traction_n, p.max_power_w / st.speed_mps)  # the most traction the train has at this speed
                     f.formation.update(t, self.record_every_s, st.speed_mps, gap, self.coupled_spacing_m(fid, st.speed_mps, st.s_m),
-                                       plan.profile.speed_limit_train(st.s_m, plan.stock.length_m), v_nominal, v_guard,
+                                       min(plan.profile.speed_limit_train(st.s_m, plan.stock.length_m), p.max_speed_ms), v_nominal, v_guard,
                                        at_full_traction=f_in >= 0.98 * full)
                 self._records.append((
                     t, fid, f.pred.id, st.km, st.speed_mps, pst.speed_mps, gap,

@@ -128,7 +128,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     dt = vc_step_s if case.regime == "vc" else step_s
     run = leader_run(setup, stock, case, dt, model)
     s_check = check_position_m(setup)
-    init_gap = initial_convoy_gap(model, stock, setup.v0) if case.convoy_size > 1 else 0.0
+    init_gap = initial_convoy_gap(model, stock, setup.v0, setup, case.convoy_size) if case.convoy_size > 1 else 0.0
     spacing_of = convoy_spacing(case.controller, stock, dt, assumptions) if case.regime == "vc" and case.convoy_size > 1 else None
     theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check, spacing_of)
     guess = theory.headway_s

@@ -13,9 +13,9 @@ from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.running_time import Stop, speed_at, unhindered_run
+from vcsumo.running_time import Stop, speed_at, stall_problem, unhindered_run
 from vcsumo.signalling.regimes import REGIMES, HeadwayInputs
-from vcsumo.signalling.separation import RouteBraking, SeparationModel
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.studies.headway import release_km
 from vcsumo.timetable import PlannedStop, PlannedTrain
@@ -120,6 +120,12 @@ def unit_trains(topo, setup: RouteSetup, stock: RollingStock, case: Case, n_unit
 def leader_run(setup: RouteSetup, stock: RollingStock, case: Case, step_s: float, model: SeparationModel) -> pd.DataFrame:
     """The unit leader's run alone, as the supervised SUMO driver runs it (guaranteed braking)."""
     stops = setup.stops_full if case.pattern == "all-stops" else []
+    short = [f"'{st}' ({length:g} m)" for st, _, _, _, length in stops if length + 1e-6 < stock.length_m]
+    if short:  # as a timetable's stop there is refused (vcsumo.timetable)
+        raise VcsumoError(f"{case.pattern}: train {stock.name} is {stock.length_m:g} m long, longer than the platform of {', '.join(short)}")
+    stall = stall_problem(stock.params(), setup.full, min(stock.length_m + 1.0, setup.release_s), setup.full.length_m)
+    if stall:  # it would stand there for ever: no probe could be healthy
+        raise VcsumoError(f"infeasible: train {stock.name} {stall} ({setup.direction})")
     return unhindered_run(stock.params(), setup.full, dt=step_s, s0=setup.release_s, v0=setup.v0, stops=[Stop(s, d) for _, _, s, d, _ in stops],
                           stop_at_end=False, curve=RouteBraking(model, stock, setup.full).curve(1.5 * step_s))
 
@@ -149,6 +155,22 @@ def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, st
     return REGIMES[case.regime].analytic_headway(inp, case.convoy_size)
 
 
-def initial_convoy_gap(model: SeparationModel, stock: RollingStock, v0: float) -> float:
-    """Starting gap inside a convoy: the separation model's coupled gap at the release speed + 20 m."""
-    return model.vc_gap(stock, stock, v0) + 20.0
+def initial_convoy_gap(model: SeparationModel, stock: RollingStock, v0: float, setup: RouteSetup | None = None, members: int = 2) -> float:
+    """Starting gap inside a convoy: the separation model's coupled gap at the release speed + 20 m,
+    and (``setup``) at least that relative-braking gap where the ``members`` start on the route (a
+    grade under them changes it) + 20 m: no follower starts inside its safe separation."""
+    gap = model.vc_gap(stock, stock, v0) + 20.0
+    if setup is None:
+        return gap
+    rule = RelativeBraking(model, stock, stock, setup.full)
+    dead = model.dead_time_s + model.assumptions.t2t_delay_bound_s  # as vc_gap: the leader's newest message at its oldest
+    for _ in range(3):  # where the members start depends on the gap
+        need = 0.0
+        for k in range(1, members):
+            s_l = setup.release_s - (k - 1) * (stock.length_m + gap)
+            s_f = s_l - stock.length_m - gap
+            if s_f < stock.length_m:
+                break
+            need = max(need, rule.required_gap(s_f, setup.depart_speed(s_f), s_l, setup.depart_speed(s_l), dead))
+        gap = max(gap, need + 20.0)
+    return gap

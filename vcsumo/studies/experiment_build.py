@@ -253,7 +253,10 @@ def coupled_gap_m(setup: FollowerSetup, lead: RollingStock, ego: RollingStock, p
     ctrl = setup.stack.nominal
     cruise = getattr(ctrl, "cfg", None)
     if not isinstance(cruise, CruiseConfig):
-        return float(setup.stack.coupled_gap_m(v))
+        gap = float(setup.stack.coupled_gap_m(v))
+        for _ in range(4):  # on the route: the spacing follows the gradients under the follower, whose place depends on the gap
+            gap = float(setup.stack.coupled_gap_m(v, position_m=s_leader - lead.length_m - gap))
+        return gap
     model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(ego), ctrl.cbf, profile)
     msg = Message(sender="leader", sent_time_s=0.0, state=TrainStateMsg(0.0, s_leader, v), length_m=lead.length_m)
     s_f = s_leader - lead.length_m - ctrl.cbf.safety_distance_m

@@ -279,8 +279,11 @@ def stop_rows(exp: Experiment, arr: dict[str, np.ndarray], ids: list[str], leade
     i_l = int(np.searchsorted(t, t_l)) if math.isfinite(t_l) else len(t) - 1
     onset_v = exp.measurements.stop.onset_speed_mps
     before = t < (t_l if math.isfinite(t_l) else np.inf)
+    stopped = math.isfinite(t_l)  # a leader still running at the end (its brake event never came): no stop to measure
     if leader_brake_s is not None:
         i_b = int(np.searchsorted(t, leader_brake_s - 1e-9))
+    elif not stopped:
+        i_b = None
     elif onset_v is not None:
         run = np.flatnonzero((v[:, 0] >= onset_v - 0.05) & before)
         i_b = int(run[-1]) if len(run) else i_l
@@ -288,23 +291,26 @@ def stop_rows(exp: Experiment, arr: dict[str, np.ndarray], ids: list[str], leade
         acc = np.diff(v[:, 0], prepend=v[0, 0]) / exp.step_s
         run = np.flatnonzero((acc >= -0.05) & before & (v[:, 0] > 0.01))
         i_b = int(run[-1]) if len(run) else i_l
-    i_b = min(i_b, len(t) - 1)
-    rows.append((ids[0], "stop", "leader_brake_onset_s", float(t[i_b]), "s"))
+    i_b = None if i_b is None else min(i_b, len(t) - 1)
+    at_onset = (lambda x: float(x[i_b])) if i_b is not None else (lambda x: math.nan)
+    at_stop = (lambda x: float(x[min(i_l, len(t) - 1)])) if stopped else (lambda x: math.nan)
+    rows.append((ids[0], "stop", "leader_brake_onset_s", at_onset(t), "s"))
     rows.append((ids[0], "stop", "leader_stop_time_s", t_l, "s"))
-    rows.append((ids[0], "stop", "leader_stop_position_m", float(arr["pos"][min(i_l, len(t) - 1), 0]), "m"))
+    rows.append((ids[0], "stop", "leader_stop_position_m", at_stop(arr["pos"][:, 0]), "m"))
     for j in range(arr["gap_fr"].shape[1]):
         i = j + 1
         fr, ff = arr["gap_fr"][:, j], arr["gap_ff"][:, j]
         t_f = stop_time(t, v[:, i])
         i_f = int(np.searchsorted(t, t_f)) if math.isfinite(t_f) else len(t) - 1
         i_both = min(max(i_l, i_f), len(t) - 1)
+        at_rest = (lambda x: float(x[i_both])) if stopped and math.isfinite(t_f) else (lambda x: math.nan)
         rows += [
-            (ids[i], "stop", "gap_at_brake_onset_m", float(fr[i_b]), "m"),
-            (ids[i], "stop", "gap_at_brake_onset_front_to_front_m", float(ff[i_b]), "m"),
-            (ids[i], "stop", "max_gap_before_brake_onset_m", float(fr[: i_b + 1].max()), "m"),
-            (ids[i], "stop", "gap_at_leader_stop_m", float(fr[min(i_l, len(t) - 1)]), "m"),
-            (ids[i], "stop", "gap_at_rest_m", float(fr[i_both]), "m"),
-            (ids[i], "stop", "gap_at_rest_front_to_front_m", float(ff[i_both]), "m"),
+            (ids[i], "stop", "gap_at_brake_onset_m", at_onset(fr), "m"),
+            (ids[i], "stop", "gap_at_brake_onset_front_to_front_m", at_onset(ff), "m"),
+            (ids[i], "stop", "max_gap_before_brake_onset_m", float(fr[: i_b + 1].max()) if i_b is not None else math.nan, "m"),
+            (ids[i], "stop", "gap_at_leader_stop_m", at_stop(fr), "m"),
+            (ids[i], "stop", "gap_at_rest_m", at_rest(fr), "m"),
+            (ids[i], "stop", "gap_at_rest_front_to_front_m", at_rest(ff), "m"),
             (ids[i], "stop", "stop_time_s", t_f, "s"),
             (ids[i], "stop", "stop_delay_s", t_f - t_l, "s"),
         ]

@@ -43,7 +43,7 @@ from vcsumo.results import write_csv
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
-from vcsumo.running_time import speed_at, unhindered_run
+from vcsumo.running_time import speed_at, stall_problem, unhindered_run
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.timetable import PlannedTrain
@@ -97,6 +97,9 @@ def prepare_case(line: Line, net: BuiltNetwork, stock: RollingStock, direction: 
     rel_km = release_km(line, direction)
     s_rel_full = full.s_of("main", rel_km)
     start = min(stock.length_m + 1.0, full.length_m)
+    stall = stall_problem(p, full, min(start, s_rel_full), full.length_m)
+    if stall:  # it would stand there for ever: no probe could be healthy
+        raise VcsumoError(f"infeasible: train {stock.name} {stall} ({direction})")
     if s_rel_full <= start + 1.0:
         v0 = 0.0
         s_rel_full = start

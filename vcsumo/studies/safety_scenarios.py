@@ -149,6 +149,8 @@ class LineRoute:
     junctions: list[Junction]
     edges: list[str]
     """The main track's SUMO edges in ``direction`` (the route of ``profile``)."""
+    stock_spec: str = ""
+    """The line's ``default_train`` as written (a name or a path: what :func:`stock` loads it by)."""
 
 
 @lru_cache(maxsize=None)
@@ -168,7 +170,7 @@ def line_route(line_spec: str, direction: str) -> LineRoute:
         except KeyError:
             continue
         junctions.append(Junction(br.junction_name or br.id, s, br.diverging_speed_kmh / 3.6))
-    return LineRoute(line.name, direction, load_rolling_stock(line.data.default_train), profile, junctions, edges)
+    return LineRoute(line.name, direction, load_rolling_stock(line.data.default_train), profile, junctions, edges, line.data.default_train)
 
 
 def capped_profile(profile: RouteProfile, v_cap_mps: float, point_limits: list[tuple[float, float]] = ()) -> RouteProfile:
@@ -187,6 +189,7 @@ class ScenarioSpec:
     index: int
     id: str
     line: str
+    """The line as the campaign names it (a shipped name or a line.yaml path: what :func:`line_route` loads)."""
     direction: str
     kind: str
     followers: int
@@ -227,7 +230,7 @@ def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
     if rng.random() < cfg.heterogeneous_probability:
         names = tuple(cfg.rolling_stock[int(rng.integers(len(cfg.rolling_stock)))] for _ in range(n_f + 1))
     else:
-        names = (route.stock.name,) * (n_f + 1)
+        names = (route.stock_spec,) * (n_f + 1)
     v_train = min(stock(n).max_speed_ms for n in names)
     j_s, v_div = math.nan, math.nan
     follower_speed = math.nan
@@ -264,7 +267,7 @@ def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
         start = float(rng.uniform(0.0, t_brake + 30.0))
         outage = (start, start + float(rng.uniform(1.0, cfg.outage_max_s)))
     return ScenarioSpec(
-        index=index, id=f"s{index:05d}", line=route.line, direction=direction, kind=kind, followers=n_f, stocks=names, leader_start_m=s_lead,
+        index=index, id=f"s{index:05d}", line=line, direction=direction, kind=kind, followers=n_f, stocks=names, leader_start_m=s_lead,
         leader_speed_mps=v0, follower_speed_mps=follower_speed, brake_time_s=t_brake, spacing_factor=factor, junction_s_m=j_s, diverging_speed_mps=v_div,
         delay_s=float(rng.uniform(0.0, cfg.delay_max_s)), mean_extra_delay_s=float(rng.uniform(0.0, cfg.mean_extra_max_s)),
         loss_probability=float(rng.uniform(0.0, cfg.loss_max)), outage=outage,

@@ -357,6 +357,8 @@ def load_inputs(cfg: TradeoffConfig) -> tuple[Line, RollingStock, AssumptionSet]
     try:
         stock = load_rolling_stock(name)
     except InputError as exc:
+        if exc.path is None and not cfg.train:  # the line's default_train: the line file is to blame
+            raise InputError(line.path, "default_train", exc.message) from None
         raise InputError(exc.path, exc.field if exc.path else "--train", exc.message) from None
     return line, stock, load_assumptions(cfg.assumptions)
 
