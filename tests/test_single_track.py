@@ -11,6 +11,8 @@ from vcsumo.network_file import load_network
 from vcsumo.timetable import load_timetable, plan_trains
 
 from .conftest import write
+from .test_network_unseen import DBL, DSB  # the same double-track line and single-track branch
+from .test_network_unseen import DS_NET as NET, DSB_HEAD_ON as HEAD_ON
 
 LINE = """
 name: sgline
@@ -73,15 +75,6 @@ def test_opposing_trains_starting_at_either_end_of_a_single_track_line(tmp_path,
     _apart(tr, ["E1"], ["W1"], "main")
 
 
-DBL = """
-name: dbl
-km_start: 0.0
-km_end: 6.0
-line_speed_kmh: 160
-stations:
-  - {id: DST, name: Doubleton, km: 0.5, platform_length_m: 300}
-signalling: {block_length_m: 1500}
-"""
 SGL = """
 name: sgl
 km_start: 0.0
@@ -91,16 +84,6 @@ line_speed_kmh: 160
 stations:
   - {id: SGE, name: Single End, km: 15.6, platform_length_m: 300}
 signalling: {block_length_m: 1500}
-"""
-NET = """
-name: ds
-lines:
-  - {line: dbl.yaml}
-  - {line: sgl.yaml}
-joins:
-  - id: change
-    end: {line: sgl, at: start}
-    meets: {line: dbl, km: 6.0}
 """
 THREE = """
 name: three
@@ -140,34 +123,6 @@ def test_two_followers_wait_in_front_of_the_single_track_for_an_opposing_train(t
     _apart(tr, ["X1", "X2"], ["Y"], "sgl.main")
 
 
-DSB = """
-name: dsb
-km_start: 0.0
-km_end: 8.0
-line_speed_kmh: 160
-stations:
-  - {id: DST, name: Doubleton, km: 0.5, platform_length_m: 300}
-signalling: {block_length_m: 1500}
-branches:
-  - id: sg
-    name: Single branch
-    junction_km: 6.0
-    leaves_towards: end
-    length_m: 16000
-    speed_kmh: 160
-    diverging_speed_kmh: 160
-    tracks: single
-    stations:
-      - {id: SGE, name: Single End, km: 15.6, platform_length_m: 300}
-    block_length_m: 3000
-"""
-HEAD_ON = """
-name: h
-line: dsb
-services:
-  - {id: A, train: regional_emu160, origin: SGE, destination: DST, departure: 0}
-  - {id: B, train: regional_emu160, origin: DST, destination: SGE, departure: 60}
-"""
 
 
 @pytest.mark.sumo

@@ -29,6 +29,7 @@ from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, stall_problem, time_at, unhindered_run
 from vcsumo.single_track import single_track_meetings
+from vcsumo.timetable_gaps import idle_gaps
 from vcsumo.topology import Topology
 from vcsumo.track_graph import reachable
 from vcsumo.units import format_clock, parse_clock
@@ -401,7 +402,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             if sid not in {s.id for s in tt.services}:
                 raise InputError(path, f"convoys[{c_i}].services[{s_i}]", f"convoy '{cv.id}' names service '{sid}', which does not exist")
         check_convoy_times(trains, cv.services, path, f"convoys[{c_i}]", dt)
-    for msg in single_track_meetings(trains, topo, dt):  # they would stand facing each other
+    for msg in single_track_meetings(trains, topo, dt) + idle_gaps(trains):  # opposing trains waiting; a day of nothing
         warnings.warn(f"{path}: {msg}", stacklevel=2)
     return trains
 

@@ -114,7 +114,7 @@ def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: di
         lead, follow = (ahead.id, ego.id) if by_train else pair
         at = ", ".join(f"{st} ({length:g} m)" for st, length in w["at"].items())
         n = len(w["n"])
-        more = (f" (and {n - 1} more such pairs)" if by_train else f" ({n} runs)") if n > 1 else ""
+        more = (f" (and {n - 1} more such pair{'s' if n > 2 else ''})" if by_train else f" ({n} runs)") if n > 1 else ""
         out.append(f"convoy {lead}+{follow}{more}: {follow} ({ego.stock.name}, {ego.stock.length_m:g} m) cannot stand "
                    f"behind {lead} ({ahead.stock.name}, {ahead.stock.length_m:g} m) in the platform of {at}: {w['need']:.0f} m needed with the "
                    f"{w['gap']:.0f} m standstill gap; it waits outside until {lead} has left (the convoy re-forms after, where both run on)")
