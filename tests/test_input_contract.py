@@ -638,7 +638,7 @@ def outcomes(tmp_path_factory):
     return out
 
 
-def check(m: Mutant, rc, stdout: str, stderr: str, created: set[str]) -> None:
+def assert_contract(m: Mutant, rc, stdout: str, stderr: str, created: set[str]) -> None:
     assert rc == 2, f"exit status {rc}\nstdout: {stdout[-800:]}\nstderr: {stderr[-1500:]}"
     assert "Traceback" not in stdout + stderr, stderr
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
@@ -655,7 +655,7 @@ def check(m: Mutant, rc, stdout: str, stderr: str, created: set[str]) -> None:
 
 @pytest.mark.parametrize("m", MUTANTS, ids=[m.id for m in MUTANTS])
 def test_bad_input_is_one_line_exit_2_nothing_written(outcomes, m):
-    check(m, *outcomes[m.id])
+    assert_contract(m, *outcomes[m.id])
 
 
 # -------------------------------------------------------------------------------------------
@@ -676,7 +676,7 @@ def test_console_script_agrees_with_the_driver(outcomes, tmp_path, how):
         _materialise(m, d)
         before = _listing(d)
         proc = subprocess.run(exe + m.argv, cwd=d, capture_output=True, text=True, timeout=120)
-        check(m, proc.returncode, proc.stdout, proc.stderr, _listing(d) - before)
+        assert_contract(m, proc.returncode, proc.stdout, proc.stderr, _listing(d) - before)
         rc, _, err, _ = outcomes[mid]
         assert proc.returncode == rc
         assert _last(proc.stderr, d) == _last(err, None), (proc.stderr, err)
