@@ -91,3 +91,50 @@ def test_a_follower_waiting_in_a_platform_too_short_for_its_convoy_serves_its_st
     served = set(zip(ev.train, ev.station))
     assert {("D1", "STP"), ("D2", "STP"), ("D1", "MID"), ("D2", "MID")} <= served
     assert (ev.dwell_s >= 1.0).all()
+
+FREIGHT = """
+name: freight100
+title: freight train (unseen test) [A]
+length_m: 450.0
+mass_kg: 1000000.0
+rotating_mass_factor: 1.08
+max_speed_kmh: 100.0
+max_traction_n: 300000.0
+max_power_w: 4200000.0
+davis_a_n: 14000.0
+davis_b_n_per_mps: 100.0
+davis_c_n_per_mps2: 8.0
+service_brake_decel_mps2: 0.35
+emergency_brake_decel_mps2: 0.5
+max_jerk_mps3: 0.5
+traction_lag_s: 1.0
+"""
+# a heterogeneous convoy down the mountain: a freight train leads, a commuter EMU (which out-brakes
+# it on level track) follows; its relative-braking rule is the mid-braking form
+HETERO = """
+name: hetero
+line: alpine
+services:
+  - {id: B1, train: freight.yaml, origin: TOP, destination: VAL, departure: "07:00"}
+  - {id: B2, train: commuter.yaml, origin: TOP, destination: VAL, departure: "07:00:30"}
+convoys:
+  - {id: CB, services: [B1, B2]}
+"""
+
+
+def test_a_light_follower_behind_a_freight_train_keeps_the_rule_over_the_grade_changes(tmp_path, capsys):
+    """Before the fix the rule took each train's deceleration at the two ends of its braking run: as
+    the freight train's run reached the 25 permille climb the required gap jumped from 93 to 220 m in
+    one step and the health monitor counted a gap violation (margin −60 m). With the run integrated
+    on the gradient profile it grows with the trains and the run is healthy."""
+    line = write(tmp_path / "alpine.yaml", ALPINE)
+    write(tmp_path / "commuter.yaml", COMMUTER)
+    write(tmp_path / "freight.yaml", FREIGHT)
+    tt = write(tmp_path / "hetero.yaml", HETERO)
+    out = tmp_path / "r"
+    code = main(["run", "--line", str(line), "--timetable", str(tt), "--regime", "vc", "--controller", "cbc", "--out", str(out)])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    assert "gap violations 0, collisions 0" in cap.out
+    s = pd.read_csv(out / "summary.csv").set_index("train")
+    assert s.loc["B2", "gap_violations"] == 0 and s.loc["B2", "min_gap_m"] > 70.0

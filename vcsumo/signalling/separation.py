@@ -404,6 +404,35 @@ class RouteBraking:
         x_stop = max(x_stop, x0)
         return x_stop - s_m
 
+    def braking_run(self, s_m: float, v_mps: float, dead_time_s: float) -> list[tuple[float, float, float, float]]:
+        """The braking run from the front at s as pieces of constant deceleration in time: (start
+        time s, distance run m, speed m/s, deceleration m/s²) — the dead time at constant speed, then
+        one piece per stretch of constant deceleration until the train stands (the last piece ends
+        there; after it the train stands).  The same deceleration as :meth:`stopping_distance`."""
+        if v_mps <= 0.0:
+            return []
+        run: list[tuple[float, float, float, float]] = []
+        t = x = 0.0
+        v = v_mps
+        if dead_time_s > 0.0:
+            run.append((0.0, 0.0, v, 0.0))
+            t, x = dead_time_s, v * dead_time_s
+        b = self.brake_part(v_mps)
+        xs, gs, n = self._x, self._g, len(self._g)
+        j = min(max(bisect_right(xs, s_m + x) - 1, 0), n - 1)
+        while True:
+            a = b + G * gs[j] / self.rho
+            run.append((t, x, v, a))
+            if a <= 0.0:  # no braking here (a strongest run never; a guaranteed one is refused at construction)
+                raise ValueError(f"{self.stock.name}: no braking at {s_m + x:.0f} m")
+            end = xs[j + 1] - s_m if j + 1 < n else math.inf
+            if x + v * v / (2.0 * a) <= end:
+                return run
+            v_end = math.sqrt(max(v * v - 2.0 * a * (end - x), 0.0))
+            t += (v - v_end) / a
+            x, v = end, v_end
+            j += 1
+
     def stopping_bound(self, v_mps: float, dead_time_s: float) -> float:
         """An upper bound of :meth:`stopping_distance` from anywhere on the route (s ≥ 0), m: v·T + v²/(2·a)
         with a the lowest deceleration of the route (its steepest descent; the brake part at the
@@ -430,6 +459,46 @@ class RouteBraking:
 # Relative braking along a route (the VC guard and the run-health monitor of coupled followers)
 
 
+def _run_at(run: list[tuple[float, float, float, float]], t: float) -> tuple[float, float, float]:
+    """(distance run, speed, deceleration) of a braking run at time t (standing after its last piece)."""
+    if not run:
+        return 0.0, 0.0, 0.0
+    i = bisect_right([p[0] for p in run], t) - 1
+    t0, x0, v0, a = run[max(i, 0)]
+    dt = t - t0
+    if a > 0.0 and dt >= v0 / a:  # stood within this piece (only the last piece ends in a stand)
+        return x0 + v0 * v0 / (2.0 * a), 0.0, 0.0
+    return x0 + v0 * dt - 0.5 * a * dt * dt, v0 - a * dt, a
+
+
+def max_closing(follower_run: list[tuple[float, float, float, float]], leader_run: list[tuple[float, float, float, float]]) -> float:
+    """The largest closing max_t [x_f(t) − x_l(t)] (≥ 0) of two braking runs
+    (:meth:`RouteBraking.braking_run`), m: exact — between consecutive break points of either run
+    both decelerations are constant, so the closing is a parabola whose largest value lies at an
+    end or where the speeds are equal."""
+    def end_time(run):
+        if not run:
+            return 0.0
+        t0, _, v0, a = run[-1]
+        return t0 + (v0 / a if a > 0.0 else 0.0)
+
+    times = sorted({p[0] for p in follower_run} | {p[0] for p in leader_run} | {end_time(follower_run), end_time(leader_run)} | {0.0})
+    best = 0.0
+    for k, t in enumerate(times):
+        xf, vf, af = _run_at(follower_run, t)
+        xl, vl, al = _run_at(leader_run, t)
+        if xf - xl > best:
+            best = xf - xl
+        if k + 1 < len(times) and vf > vl and af != al:  # closing still grows here: where do the speeds meet?
+            t_eq = t + (vf - vl) / (af - al) if af > al else math.inf
+            if t_eq < times[k + 1]:
+                dt = t_eq - t
+                c = (xf - xl) + (vf - vl) * dt - 0.5 * (af - al) * dt * dt
+                if c > best:
+                    best = c
+    return best
+
+
 class RelativeBraking:
     """The relative-braking rule for one follower behind one leader, on the follower's route.
 
@@ -454,13 +523,15 @@ class RelativeBraking:
 
     def closing(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
         """How much the front-to-rear gap closes in the worst case from now, m (≥ 0)."""
-        d_f = self.follower.stopping_distance(s_f, v_f, dead_time_s)
-        d_l = self.leader.stopping_distance(s_l, v_l, 0.0)
         if self.never_outbrakes:
+            d_f = self.follower.stopping_distance(s_f, v_f, dead_time_s)
+            d_l = self.leader.stopping_distance(s_l, v_l, 0.0)
             return max(0.0, d_f - d_l)  # stopping points: the gap is smallest when both stand
-        a_f = min(self.follower.decel_at(x, v_f) for x in (s_f, s_f + d_f))
-        a_l = max(self.leader.decel_at(x, v_l) for x in (s_l, s_l + d_l))
-        return relative_braking_gap(v_f, v_l, max(a_f, 1e-3), a_l, dead_time_s)
+        # the follower may out-brake the leader somewhere: the largest closing over the whole episode,
+        # both runs integrated on the gradient profile (exact, and continuous in the states: one
+        # deceleration per train for the whole run would miss a climb under the leader's run that
+        # neither end reaches, and jump when an end crosses onto it)
+        return max_closing(self.follower.braking_run(s_f, v_f, dead_time_s), self.leader.braking_run(s_l, v_l, 0.0))
 
     def required_gap(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
         """Front-to-rear gap the follower needs: the closing plus margin and position errors, m."""
