@@ -45,6 +45,7 @@ from vcsumo.dynamics import running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.running_time import curve_speed as authority_speed  # the braking curve: v·T + (v² − v_t²)/(2a) ≤ distance
 from vcsumo.signalling.assumptions import AssumptionSet
+from vcsumo.signalling.braking_runs import braking_run, max_closing
 from vcsumo.units import G
 
 # -------------------------------------------------------------------------------------------
@@ -405,33 +406,9 @@ class RouteBraking:
         return x_stop - s_m
 
     def braking_run(self, s_m: float, v_mps: float, dead_time_s: float) -> list[tuple[float, float, float, float]]:
-        """The braking run from the front at s as pieces of constant deceleration in time: (start
-        time s, distance run m, speed m/s, deceleration m/s²) — the dead time at constant speed, then
-        one piece per stretch of constant deceleration until the train stands (the last piece ends
-        there; after it the train stands).  The same deceleration as :meth:`stopping_distance`."""
-        if v_mps <= 0.0:
-            return []
-        run: list[tuple[float, float, float, float]] = []
-        t = x = 0.0
-        v = v_mps
-        if dead_time_s > 0.0:
-            run.append((0.0, 0.0, v, 0.0))
-            t, x = dead_time_s, v * dead_time_s
-        b = self.brake_part(v_mps)
-        xs, gs, n = self._x, self._g, len(self._g)
-        j = min(max(bisect_right(xs, s_m + x) - 1, 0), n - 1)
-        while True:
-            a = b + G * gs[j] / self.rho
-            run.append((t, x, v, a))
-            if a <= 0.0:  # no braking here (a strongest run never; a guaranteed one is refused at construction)
-                raise ValueError(f"{self.stock.name}: no braking at {s_m + x:.0f} m")
-            end = xs[j + 1] - s_m if j + 1 < n else math.inf
-            if x + v * v / (2.0 * a) <= end:
-                return run
-            v_end = math.sqrt(max(v * v - 2.0 * a * (end - x), 0.0))
-            t += (v - v_end) / a
-            x, v = end, v_end
-            j += 1
+        """The braking run from the front at s (:func:`vcsumo.signalling.braking_runs.braking_run`):
+        the dead time at constant speed, then this train's deceleration along the route."""
+        return braking_run(self._x, self._g, self.rho, self.brake_part(v_mps), s_m, v_mps, dead_time_s, self.stock.name)
 
     def stopping_bound(self, v_mps: float, dead_time_s: float) -> float:
         """An upper bound of :meth:`stopping_distance` from anywhere on the route (s ≥ 0), m: v·T + v²/(2·a)
@@ -457,46 +434,6 @@ class RouteBraking:
 
 # -------------------------------------------------------------------------------------------
 # Relative braking along a route (the VC guard and the run-health monitor of coupled followers)
-
-
-def _run_at(run: list[tuple[float, float, float, float]], t: float) -> tuple[float, float, float]:
-    """(distance run, speed, deceleration) of a braking run at time t (standing after its last piece)."""
-    if not run:
-        return 0.0, 0.0, 0.0
-    i = bisect_right([p[0] for p in run], t) - 1
-    t0, x0, v0, a = run[max(i, 0)]
-    dt = t - t0
-    if a > 0.0 and dt >= v0 / a:  # stood within this piece (only the last piece ends in a stand)
-        return x0 + v0 * v0 / (2.0 * a), 0.0, 0.0
-    return x0 + v0 * dt - 0.5 * a * dt * dt, v0 - a * dt, a
-
-
-def max_closing(follower_run: list[tuple[float, float, float, float]], leader_run: list[tuple[float, float, float, float]]) -> float:
-    """The largest closing max_t [x_f(t) − x_l(t)] (≥ 0) of two braking runs
-    (:meth:`RouteBraking.braking_run`), m: exact — between consecutive break points of either run
-    both decelerations are constant, so the closing is a parabola whose largest value lies at an
-    end or where the speeds are equal."""
-    def end_time(run):
-        if not run:
-            return 0.0
-        t0, _, v0, a = run[-1]
-        return t0 + (v0 / a if a > 0.0 else 0.0)
-
-    times = sorted({p[0] for p in follower_run} | {p[0] for p in leader_run} | {end_time(follower_run), end_time(leader_run)} | {0.0})
-    best = 0.0
-    for k, t in enumerate(times):
-        xf, vf, af = _run_at(follower_run, t)
-        xl, vl, al = _run_at(leader_run, t)
-        if xf - xl > best:
-            best = xf - xl
-        if k + 1 < len(times) and vf > vl and af != al:  # closing still grows here: where do the speeds meet?
-            t_eq = t + (vf - vl) / (af - al) if af > al else math.inf
-            if t_eq < times[k + 1]:
-                dt = t_eq - t
-                c = (xf - xl) + (vf - vl) * dt - 0.5 * (af - al) * dt * dt
-                if c > best:
-                    best = c
-    return best
 
 
 class RelativeBraking:
