@@ -128,17 +128,18 @@ def test_every_results_folder_records_inputs_versions_seed_and_wall_time(batch):
     assert len(summ) == 6 and summ.runs.tolist() == [2] * 6
 
 
-def test_the_same_command_again_runs_nothing(batch, monkeypatch):
-    from click.testing import CliRunner
-
-    from vcsumo.cli.batch import batch_cmd
+def test_the_same_command_again_runs_nothing(batch, capsys):
+    """Re-run: nothing runs, batch.csv is untouched, and the verdict is the same — the four failed runs
+    (of twelve) make the command exit 1 with one line naming them and where they are."""
+    from vcsumo.cli.main import main
 
     out, df, specs = batch
     before = (out / "batch.csv").read_text()
-    result = CliRunner().invoke(batch_cmd, ["--line", "felez_test", "--timetables", specs, "--regimes", "fbs,mb", "--seeds", "2",
-                                            "--out", str(out), "--workers", "2"], catch_exceptions=False)
-    assert result.exit_code == 0, result.output
-    assert "0 run now, 12 already in batch.csv" in result.output and "4 failed" in result.output
+    code = main(["batch", "--line", "felez_test", "--timetables", specs, "--regimes", "fbs,mb", "--seeds", "2", "--out", str(out), "--workers", "2"])
+    cap = capsys.readouterr()
+    assert code == 1, cap.err
+    assert "0 run now, 12 already in batch.csv" in cap.out and "4 failed" in cap.out
+    assert f"error: 4 of 12 runs of the batch are not clean (4 failed); results kept in {out / 'batch.csv'}" in cap.err
     assert (out / "batch.csv").read_text() == before
 
 

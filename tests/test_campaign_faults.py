@@ -208,6 +208,42 @@ def test_a_capacity_study_in_which_every_case_fails_exits_1(tmp_path, capsys, mo
     assert pd.read_csv(out / "capacity.csv").error.str.contains("no sustainable headway").all()
 
 
+def test_a_batch_in_which_some_runs_fail_keeps_them_and_exits_1(tmp_path, capsys):
+    """Exit 0 means every run clean: one failed run of two makes the batch exit 1, with the finished
+    run kept in batch.csv and the line naming how many of how many and where."""
+    bad = write(tmp_path / "too_fast.yaml", INFEASIBLE)
+    out = tmp_path / "b"
+    args = ["batch", "--line", "felez_test", "--timetables", f"test,{bad}", "--regimes", "fbs", "--seeds", "1", "--workers", "1", "--out", str(out)]
+    assert main(args) == 1
+    cap = capsys.readouterr()
+    assert f"error: 1 of 2 runs of the batch is not clean (1 failed); results kept in {out / 'batch.csv'}" in cap.err
+    rows = pd.read_csv(out / "batch.csv")
+    assert sorted(rows.status) == ["failed", "ok"] and rows.run_key.is_unique
+    assert main(args) == 1  # resumed: nothing run again, the same verdict
+    assert "0 run now, 2 already in batch.csv" in capsys.readouterr().out
+
+
+def test_a_capacity_study_in_which_one_case_fails_exits_1(tmp_path, capsys, monkeypatch):
+    """One VC case raises (in this process, --workers 1): the other cases are kept and the study exits 1."""
+    from vcsumo.errors import VcsumoError
+    from vcsumo.studies import capacity
+
+    real = capacity.run_case
+
+    def run_case(line, net, stock, setup, case, *a, **k):
+        if case.regime == "vc" and case.convoy_size == 2:
+            raise VcsumoError("no sustainable headway found (test)")
+        return real(line, net, stock, setup, case, *a, **k)
+
+    monkeypatch.setattr(capacity, "run_case", run_case)
+    out = tmp_path / "cap"
+    assert main([*CAPACITY, "--workers", "1", "--out", str(out)]) == 1
+    cap = capsys.readouterr()
+    df = pd.read_csv(out / "capacity.csv")
+    assert f"error: 1 of {len(df)} cases of the capacity study is not clean (1 failed); results kept in {out / 'capacity.csv'}" in cap.err
+    assert (df.error.fillna("") != "").sum() == 1 and df[df.error.isna()].healthy.all()
+
+
 def test_a_capacity_study_without_cases_is_an_input_error(in_tmp, capsys):
     """felez_test has no intermediate station: an all-stops study has nothing to run."""
     assert main(["study", "capacity", "--line", "felez_test", "--patterns", "all-stops", "--out", "c"]) == 2

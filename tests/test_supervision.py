@@ -126,10 +126,13 @@ def test_moving_block_follower_stops_behind_a_train_standing_on_a_descent(tmp_pa
     assert alone["stops_skipped"] >= 1 and alone["gap_violations"] >= 1 and alone["min_margin_m"] < -100
 
 
-def test_a_train_standing_in_its_platform_behind_another_has_served_its_stop(line_factory, network_factory):
-    """A convoy follower stands in the platform behind its leader (SUMO serves the stop there); the
-    supervision then no longer brakes it to the platform's end after the convoy leaves (regional_graded
-    all-stops VC capacity: the follower crept 146 m at 0.08 m/s and fell 2 km behind its leader)."""
+def test_a_train_standing_in_its_platform_has_served_its_stop_only_where_sumo_holds_it(line_factory, network_factory):
+    """A convoy follower stands in the platform behind its leader. Where SUMO serves the stop there
+    (it holds the train), the supervision no longer brakes it to the platform's end after the convoy
+    leaves (regional_graded all-stops VC capacity: the follower crept 146 m at 0.08 m/s and fell 2 km
+    behind its leader). Where SUMO does not (a follower waiting 170 m short of its stopping point
+    behind a leader in a platform too short for both), the stop stays its target: an unseen mountain
+    line's follower, supervised as if served, ran through its stop on a 20 permille descent."""
     from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.signalling.separation import SeparationModel
     from vcsumo.sim.supervision import BrakingCurveSupervisor
@@ -140,15 +143,22 @@ def test_a_train_standing_in_its_platform_behind_another_has_served_its_stop(lin
     t = next(x for x in plan_trains(tt, p, line, network_factory("regional_graded").topology) if len(x.stops) >= 2)
     stop = t.stops[0]
     assert stop.platform_length_m > 0
-    sup = BrakingCurveSupervisor(SeparationModel(load_assumptions()), "mb", [t], 0.5)
+    held = {t.id: False}
+    sup = BrakingCurveSupervisor(SeparationModel(load_assumptions()), "mb", [t], 0.5, held_at_stop=held.get)
     before = stop.s_m - stop.platform_length_m - 5.0
     sup.permitted(t.id, 0.0, before, 0.0)  # standing short of the platform (held at a signal): still its stop
     assert sup.curves[t.id].next_stop == 0 and sup.permitted(t.id, 0.5, before, 20.0).reason == "stop"
     inside = stop.s_m - 0.5 * stop.platform_length_m
     assert sup.permitted(t.id, 1.0, inside, 15.0).reason == "stop"  # running in the platform: still braking for it
-    sup.permitted(t.id, 1.5, inside, 0.0)  # standing in it
+    sup.permitted(t.id, 1.5, inside, 0.0)  # standing in it, SUMO not holding it: not served
+    assert sup.curves[t.id].next_stop == 0 and sup.permitted(t.id, 2.0, inside, 15.0).reason == "stop"
+    held[t.id] = True
+    sup.permitted(t.id, 2.5, inside, 0.0)  # standing in it, held by SUMO: served there
     assert sup.curves[t.id].next_stop == 1
-    assert sup.permitted(t.id, 2.0, inside + 0.5, 1.0).reason != "stop" or t.stops[1].s_m - inside < 500.0
+    assert sup.permitted(t.id, 3.0, inside + 0.5, 1.0).reason != "stop" or t.stops[1].s_m - inside < 500.0
+    alone = BrakingCurveSupervisor(SeparationModel(load_assumptions()), "mb", [t], 0.5)  # nobody to ask: never assumed served
+    alone.permitted(t.id, 0.0, inside, 0.0)
+    assert alone.curves[t.id].next_stop == 0
 
 
 def test_an_overrun_is_passing_the_end_of_authority_not_standing_where_placed(line_factory, network_factory):

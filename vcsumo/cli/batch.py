@@ -12,6 +12,7 @@ from pathlib import Path
 
 from vcsumo.cli.options import config_command
 from vcsumo.cli.ui import out_console, print_table, progress_bar
+from vcsumo.cli.verdict import require_clean
 from vcsumo.studies.configs import BatchConfig
 
 
@@ -81,3 +82,4 @@ def batch(cfg: BatchConfig) -> None:
         raise CampaignFailed(f"the batch has no run ({folder / 'batch.csv'} is empty)")
     if len(failed) == len(df):
         raise CampaignFailed(f"every run of the batch failed ({len(df)} of {len(df)}; errors above and in {folder / 'batch.csv'})")
+    require_clean("the batch", len(df), len(failed), n_unhealthy, folder / "batch.csv", noun="runs")

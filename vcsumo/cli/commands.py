@@ -4,8 +4,8 @@ Each command is one function of its validated configuration (:mod:`vcsumo.studie
 function ``vcsumo study run FILE`` calls too: load and check the inputs the configuration names
 (errors blame the option or the study file's field; nothing is written yet), run the library
 function with a progress bar, print the table and where it wrote.  A command whose results are
-empty, or every case failed, or whose run is not healthy, says so on one line and exits 1 (results
-kept).  The click commands are generated from the models (:func:`vcsumo.cli.options.config_command`).
+empty, or whose run or any case failed or is not healthy, says so on one line and exits 1 (results
+kept: :mod:`vcsumo.cli.verdict`).  The click commands are generated from the models (:func:`vcsumo.cli.options.config_command`).
 """
 
 from __future__ import annotations
@@ -16,16 +16,11 @@ import time
 
 from vcsumo.cli.options import config_command
 from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
-from vcsumo.errors import VcsumoError
+from vcsumo.cli.verdict import NotClean, count_not_healthy, require_clean
 from vcsumo.studies.configs import BuildNetworkConfig, CapacityConfig, HeadwayConfig, RunConfig
 
 log = logging.getLogger(__name__)
 
-
-class NotClean(VcsumoError):
-    """The command ran and wrote its results, but they are empty or not healthy: exit status 1."""
-
-    exit_code = 1
 
 
 def network(line, block_length_m: float | None, force: bool = False):
@@ -203,6 +198,7 @@ def headway(cfg: HeadwayConfig) -> None:
     out_console.print(f"wrote {out / 'headway.csv'}")
     if len(df) == 0:
         raise CampaignFailed(f"no headway was measured: no measuring point lies after the release point of a direction ({out / 'headway.csv'} is empty)")
+    require_clean("the headway study", len(df), 0, count_not_healthy(df["healthy"]), out / "headway.csv", noun="rows")
 
 
 @config_command(HeadwayConfig, "headway")
@@ -254,6 +250,8 @@ def capacity(cfg: CapacityConfig) -> None:
         raise CampaignFailed(f"the capacity study has no case ({out / 'capacity.csv'} is empty)")
     if len(failed) == len(df):
         raise CampaignFailed(f"every case of the capacity study failed ({len(df)} of {len(df)}; errors above and in {out / 'capacity.csv'})")
+    finished = df[df.error.astype(str) == ""]
+    require_clean("the capacity study", len(df), len(failed), count_not_healthy(finished["healthy"]), out / "capacity.csv")
 
 
 @config_command(CapacityConfig, "capacity")

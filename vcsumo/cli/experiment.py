@@ -14,6 +14,7 @@ import click
 import pandas as pd
 
 from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
+from vcsumo.cli.verdict import require_clean
 from vcsumo.errors import InputError
 
 HEADLINE = ["min_gap_front_to_rear_m", "collisions", "emergency_activations", "true_barrier_max_m", "gap_front_to_rear_mean_m", "gap_front_to_front_mean_m",
@@ -77,3 +78,4 @@ def experiment_cmd(file: str, variants: str | None, seeds: str | None, no_plots:
         if len(stop) and stop.isna().all():
             out_console.print(f"{r.run}: the leader did not stop within the run: no stop measured", markup=False, highlight=False)
     out_console.print(f"wrote {out}")
+    require_clean("the experiment", len(results), 0, sum(not r.healthy for r in results), out / "measurements.csv", noun="runs")

@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from vcsumo.cli.ui import out_console, print_table, progress_bar, progress_task
-
+from vcsumo.cli.verdict import count_not_healthy, not_healthy, require_clean
 from vcsumo.errors import InputError, VcsumoError
 
 
@@ -104,3 +104,8 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
                  "delay_s", "forms_before_m", "min_gap_m", "min_margin_m", "violations", "collisions"], csv_path=out / "junction.csv",
                 drop_first=["forms_before_m", "min_gap_m", "junction"])
     out_console.print(f"wrote {out / 'junction.csv'}")
+    bad = df[not_healthy(df["healthy"])]
+    for _, r in bad.head(5).iterrows():
+        out_console.print(f"  not healthy: {r['junction']} {r['direction']} {r['regime']}{' ' + str(r['controller']) if r['controller'] else ''} "
+                          f"({r['unhealthy_runs']} of its simulations; see junction.csv)", markup=False, highlight=False)
+    require_clean("the junction study", len(df), 0, count_not_healthy(df["healthy"]), out / "junction.csv")

@@ -12,10 +12,11 @@ import time
 from pathlib import Path
 
 import click
-
-from vcsumo.cli.ui import out_console, print_table, progress_bar
+import pandas as pd
 from pydantic import ValidationError
 
+from vcsumo.cli.ui import out_console, print_table, progress_bar
+from vcsumo.cli.verdict import require_clean
 from vcsumo.errors import InputError
 
 
@@ -95,3 +96,8 @@ def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: in
         out_console.print(f"  failed: {r['scenario']} {r['controller']}: {r['error']}{more}", markup=False, highlight=False)
     if len(df) == 0 or len(failed) == len(df):
         raise CampaignFailed(f"every run of the safety campaign failed ({len(failed)} of {len(df)}; errors above and in {out / 'safety.csv'})")
+    ok = df[df["error"] == ""]
+    b0 = pd.to_numeric(ok["initial_true_barrier_m"], errors="coerce").fillna(0.0).clip(lower=0.0)
+    breach = pd.to_numeric(ok["max_true_barrier_m"], errors="coerce") > b0 + 1e-6  # the summary's barrier breach, per run
+    bad = int(((ok["separation_violations"] > 0) | (ok["collisions"] > 0) | breach).sum())
+    require_clean("the safety campaign", len(df), len(failed), bad, out / "safety.csv", noun="runs")

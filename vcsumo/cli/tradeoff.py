@@ -14,6 +14,7 @@ import click
 from pydantic import ValidationError
 
 from vcsumo.cli.ui import out_console, print_table, progress_bar
+from vcsumo.cli.verdict import count_not_healthy, require_clean
 from vcsumo.errors import InputError
 
 OPTION_OF = {"delays_s": "--delays", "position_errors_m": "--position-errors", "step_length_s": "--step-length",
@@ -118,3 +119,8 @@ def tradeoff_cmd(line_spec: str, train: str | None, convoy_sizes: str, delays: s
                     f"min margin {c.min_margin_m:.1f} m")
             out_console.print(f"check VC n=2 ({c.controller}) at {c.parameter} = {c.value:g}: {text}", markup=False, highlight=False)
     out_console.print(f"wrote {out / 'tradeoff.csv'} and {out / 'tradeoff.png'}")
+    if res.check is not None:
+        chk = res.check
+        errored = chk["error"].astype(str).str.len() > 0
+        require_clean("the trade-off's simulated check", len(chk), int(errored.sum()), count_not_healthy(chk.loc[~errored, "healthy"]),
+                      out / "tradeoff.csv", noun="cases")

@@ -45,6 +45,7 @@ from vcsumo.dynamics import running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.running_time import curve_speed as authority_speed  # the braking curve: v·T + (v² − v_t²)/(2a) ≤ distance
 from vcsumo.signalling.assumptions import AssumptionSet
+from vcsumo.signalling.braking_runs import braking_run, max_closing
 from vcsumo.units import G
 
 # -------------------------------------------------------------------------------------------
@@ -404,6 +405,11 @@ class RouteBraking:
         x_stop = max(x_stop, x0)
         return x_stop - s_m
 
+    def braking_run(self, s_m: float, v_mps: float, dead_time_s: float) -> list[tuple[float, float, float, float]]:
+        """The braking run from the front at s (:func:`vcsumo.signalling.braking_runs.braking_run`):
+        the dead time at constant speed, then this train's deceleration along the route."""
+        return braking_run(self._x, self._g, self.rho, self.brake_part(v_mps), s_m, v_mps, dead_time_s, self.stock.name)
+
     def stopping_bound(self, v_mps: float, dead_time_s: float) -> float:
         """An upper bound of :meth:`stopping_distance` from anywhere on the route (s ≥ 0), m: v·T + v²/(2·a)
         with a the lowest deceleration of the route (its steepest descent; the brake part at the
@@ -454,13 +460,15 @@ class RelativeBraking:
 
     def closing(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
         """How much the front-to-rear gap closes in the worst case from now, m (≥ 0)."""
-        d_f = self.follower.stopping_distance(s_f, v_f, dead_time_s)
-        d_l = self.leader.stopping_distance(s_l, v_l, 0.0)
         if self.never_outbrakes:
+            d_f = self.follower.stopping_distance(s_f, v_f, dead_time_s)
+            d_l = self.leader.stopping_distance(s_l, v_l, 0.0)
             return max(0.0, d_f - d_l)  # stopping points: the gap is smallest when both stand
-        a_f = min(self.follower.decel_at(x, v_f) for x in (s_f, s_f + d_f))
-        a_l = max(self.leader.decel_at(x, v_l) for x in (s_l, s_l + d_l))
-        return relative_braking_gap(v_f, v_l, max(a_f, 1e-3), a_l, dead_time_s)
+        # the follower may out-brake the leader somewhere: the largest closing over the whole episode,
+        # both runs integrated on the gradient profile (exact, and continuous in the states: one
+        # deceleration per train for the whole run would miss a climb under the leader's run that
+        # neither end reaches, and jump when an end crosses onto it)
+        return max_closing(self.follower.braking_run(s_f, v_f, dead_time_s), self.leader.braking_run(s_l, v_l, 0.0))
 
     def required_gap(self, s_f: float, v_f: float, s_l: float, v_l: float, dead_time_s: float) -> float:
         """Front-to-rear gap the follower needs: the closing plus margin and position errors, m."""

@@ -242,6 +242,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     c_mark = c
     stopped_at = (lambda t_s: progress(t_s - begin, end - begin)) if progress is not None else None  # noqa: E731
     with SumoBackend(args, error_log=out / "sumo_errors.log", label=label, on_failure=stopped_at) as sim:
+        if supervisor is not None:
+            supervisor.held_at_stop = sim.at_stop
         t = sim.time
         ahead_on_route = RouteLeaders(sim, max_length, lookahead)
         while True:

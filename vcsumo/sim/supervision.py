@@ -45,7 +45,7 @@ import math
 from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 from vcsumo.errors import VcsumoError
 from vcsumo.dynamics import discrete_stop_speed
@@ -98,7 +98,8 @@ class BrakingCurveSupervisor:
     """Permitted speeds of the trains SUMO drives under ``regime`` ('fbs' or 'mb')."""
 
     def __init__(self, model: SeparationModel, regime: str, trains: list[PlannedTrain], step_s: float, signals: dict[str, list[float]] | None = None,
-                 fixed_time_s: float | None = None, locking=None, braking: dict[str, RouteBraking] | None = None):
+                 fixed_time_s: float | None = None, locking=None, braking: dict[str, RouteBraking] | None = None,
+                 held_at_stop: Callable[[str], bool] | None = None):
         if regime not in ("fbs", "mb"):
             raise ValueError(f"braking-curve supervision of regime '{regime}' (fbs or mb)")
         self.model = model
@@ -119,6 +120,10 @@ class BrakingCurveSupervisor:
         """Odometer readings are kept only when an authority is built from an older position (MB
         reports, fixed times): under FBS without fixed times it is built from the present one."""
         self.locking = locking
+        self.held_at_stop = held_at_stop
+        """Whether SUMO holds a train at one of its stops (``SumoBackend.at_stop``): a train standing in
+        its platform short of the stopping point has been served there only if SUMO says so; None:
+        never assumed served short of the stopping point."""
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
         braking_of = braking
@@ -232,10 +237,13 @@ class BrakingCurveSupervisor:
         k0 = bisect_right(rs, s_m)  # the first restriction ahead
         stops = c.stops
         while c.next_stop < len(stops) and (stops[c.next_stop] < s_m - 1.0 or (stops[c.next_stop] < s_m + STOP_REACHED_M and v_mps < 0.05)
-                                            or (v_mps < 0.05 and c.platform_from[c.next_stop] <= s_m)):
+                                            or (v_mps < 0.05 and c.platform_from[c.next_stop] <= s_m and self.held_at_stop is not None
+                                                and self.held_at_stop(train_id))):
             # passed, standing at it (SUMO holds the train for its dwell), or standing in its platform
-            # behind a train stopped ahead in it (a convoy stands in the platform as one train; SUMO
-            # serves the stop there and does not run the follower on to the stopping point)
+            # behind a train stopped ahead in it where SUMO serves the stop (a convoy stands in the
+            # platform as one train; SUMO does not run the follower on to the stopping point). Standing
+            # in the platform further back (a follower waiting behind its predecessor) is not served:
+            # the stop stays the target, or the train would run through it once the one ahead has left
             c.next_stop += 1
         d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s) if leader_id is not None else math.inf
         if self.locking is not None:
