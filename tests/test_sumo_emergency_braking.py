@@ -10,6 +10,8 @@ kept visible, the others stay real and make the run unhealthy.  Real SUMO runs, 
 
 from __future__ import annotations
 
+import math
+
 import pandas as pd
 import pytest
 
@@ -161,3 +163,38 @@ def test_a_follower_stopped_within_a_step_stays_unhealthy_with_the_event_named(t
     assert ev.train == "F" and ev.time_s == 250.5 and ev.in_sumo_log and not ev.driven_by_sumo
     assert ev.decel_mps2 > 30.0 and ev.sumo_decel_mps2 == pytest.approx(ev.decel_mps2, abs=0.006) and ev.reason.startswith("beyond the service brake")
     assert list(rows.time_s) == [250.5, 260.5, 270.5, 280.5] and list(rows.in_sumo_log) == [True, True, True, False]
+
+
+def test_aggregated_warnings_are_judged_by_the_steps_no_written_warning_took(tmp_path):
+    """The monitor's rule on steps fed to it directly (no SUMO run): SUMO wrote one warning and
+    counted more; the rest are real at least as often as there are steps beyond service, and as
+    the steps within service cannot account for them."""
+    from vcsumo.signalling.assumptions import load_assumptions
+    from vcsumo.signalling.separation import SeparationModel
+    from vcsumo.sim.health import HealthMonitor
+    from vcsumo.sim.sumo_io import SumoLogCounts
+
+    line = load_line(write(tmp_path / "climb" / "line.yaml", LINE))
+    write(tmp_path / "freight.yaml", FREIGHT)
+    net = build_network(line)
+    tt, p = load_timetable(write(tmp_path / "t.yaml", CONVOY), line)
+    trains = plan_trains(tt, p, line, net.topology, dt=STEP_S)
+    s_m = 4000.0  # the front on the climb, the whole train on it
+    assert trains[1].profile.gradient_range(s_m - 450.0, s_m) == (0.025, 0.025)
+
+    def monitor():
+        h = HealthMonitor(SeparationModel(load_assumptions()), trains)
+        for t, decel in ((10.0, 2.0), (20.0, 0.75), (30.0, 5.0)):  # beyond, within (service + 25 ‰), beyond
+            h.update("F", STEP_S, s_m, 10.0, -decel, math.inf, math.inf, driven_by_sumo=False, time_s=t)
+        h.update("F", STEP_S, s_m, 10.0, -0.6, math.inf, math.inf, driven_by_sumo=False, time_s=40.0)  # below emergencyDecel: not recorded
+        return h
+
+    first = SumoEmergencyBraking("F", "main_up_4_0", 9.5, 2.0, 0.5, 8.39)
+    v = monitor().judge_sumo_emergency_brakings(SumoLogCounts(emergency_braking=3, emergency_braking_events=[first]), STEP_S)
+    assert (v.warnings, v.real, v.explained) == (3, 2, 1) and len(v.rows) == 3
+    assert [r["verdict"] for r in v.rows] == ["real", "explained", "real"] and [r["in_sumo_log"] for r in v.rows] == [True, False, False]
+    v = monitor().judge_sumo_emergency_brakings(SumoLogCounts(emergency_braking=2, emergency_braking_events=[first]), STEP_S)
+    assert (v.real, v.explained) == (2, 0)  # which of the two unwritten steps SUMO counted is unknown: the one beyond service is assumed
+    lost = SumoEmergencyBraking("F", "main_up_4_0", 14.5, 0.75, 0.5, 1.34)  # no step of F at 15 s
+    v = monitor().judge_sumo_emergency_brakings(SumoLogCounts(emergency_braking=2, emergency_braking_events=[first, lost]), STEP_S)
+    assert (v.real, v.explained) == (2, 0) and v.rows[1]["reason"].startswith("no step of the train")
