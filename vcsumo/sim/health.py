@@ -13,6 +13,19 @@ behind the train ahead's rear with their guaranteed brake after the dead time, p
 position errors; for virtually coupled followers the relative-braking gap against the leader's
 strongest brake (the driver supplies it).  There is no low-speed exemption: standing behind
 another train the margin and the position errors remain.
+
+SUMO's own warning "performs emergency braking" (a train's speed fell by more than its vType's
+``emergencyDecel`` × step length in one step) is judged one event at a time
+(:meth:`HealthMonitor.judge_sumo_emergency_brakings`).  SUMO's deceleration is the speed change, so
+it includes the grade: on a steep climb a train braking on its service brake — SUMO's own service
+braking, or a VC follower's commanded force — slows by g·i more than its brake gives (0.245 m/s²
+on 25 ‰), above an ``emergencyDecel`` set from the brake alone
+(:attr:`~vcsumo.rolling_stock.RollingStock.sumo_emergency_decel_mps2`).  The monitor records every
+step at which a train decelerated above its vType's ``emergencyDecel`` (whoever drives it) with the
+rule of braking beyond service above — the train's strongest service brake with its running
+resistance and the steepest up-grade under it; an event whose step was within that is *explained*
+(grade-assisted, no braking effort beyond service), every other one — beyond service, or not
+matched to a recorded step — is *real* and makes the run unhealthy.
 """
 
 from __future__ import annotations
@@ -23,6 +36,7 @@ from dataclasses import dataclass, field
 
 from vcsumo.errors import VcsumoError
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, strongest_decel
+from vcsumo.sim.sumo_io import SumoEmergencyBraking, SumoLogCounts
 from vcsumo.timetable import PlannedTrain
 
 GAP_TOLERANCE_M = 0.01
@@ -33,6 +47,56 @@ AUTHORITY_TOLERANCE_M = 0.5
 """A front more than this past its end of movement authority is an overrun, m."""
 STANDING_MPS = 0.05
 """Below this a train stands: it cannot start an overrun (it only continues one), m/s."""
+SUMO_WARNING_SLACK_MPS2 = 0.01
+"""A step is recorded as one SUMO may warn of above the vType's emergencyDecel minus this, m/s²
+(SUMO rounds nothing, the slack only makes the recorded steps a superset of its warnings)."""
+SUMO_DECEL_MATCH_MPS2 = 0.006
+"""A SUMO event matches a recorded step of its train at its time when their decelerations differ by
+at most this (SUMO writes two decimals), m/s²."""
+
+
+@dataclass(frozen=True)
+class HardBraking:
+    """A step at which a train decelerated above its vType's emergencyDecel (SI units)."""
+
+    time_s: float
+    s_m: float
+    speed_mps: float
+    """The speed at the end of the step, m/s."""
+    decel_mps2: float
+    service_limit_mps2: float
+    """The strongest service deceleration there (brake at the top of its box, running resistance,
+    steepest up-grade under the train), m/s²."""
+    gradient_permille: float
+    """The steepest gradient under the train (+ rising), ‰."""
+    driven_by_sumo: bool
+
+    @property
+    def beyond_service(self) -> bool:
+        return self.decel_mps2 > self.service_limit_mps2 + DECEL_TOLERANCE_MPS2
+
+
+@dataclass
+class SumoBrakingVerdict:
+    """SUMO's emergency-braking warnings of a run judged against the recorded steps."""
+
+    warnings: int = 0
+    """SUMO's total (every warning, written or aggregated)."""
+    explained: int = 0
+    """Warnings of steps braked within the service brake (the grade made the deceleration)."""
+    real: int = 0
+    """The others: braking beyond service, or no recorded step to explain them."""
+    rows: list[dict] = field(default_factory=list)
+    """One row per recorded step and per written warning no step matched (:data:`SUMO_BRAKING_COLUMNS`)."""
+
+
+SUMO_BRAKING_COLUMNS = ["time_s", "train", "lane", "decel_mps2", "sumo_decel_mps2", "wished_mps2", "severity", "service_limit_mps2",
+                        "gradient_permille", "speed_mps", "driven_by_sumo", "in_sumo_log", "verdict", "reason"]
+"""Columns of sumo_emergency_brakings.csv: ``time_s`` the loop's time, at the end of the step (SUMO's
+warning names its start, one step length earlier); ``decel_mps2`` the loop's, ``sumo_decel_mps2``
+SUMO's (two decimals); ``in_sumo_log`` — SUMO wrote this warning one by one
+(false: a recorded step SUMO may have counted only in its aggregated total); ``verdict``
+``explained``/``real``."""
 
 
 @dataclass
@@ -59,6 +123,8 @@ class TrainHealth:
     _beyond: bool = field(default=False, repr=False)
     _overrun: bool = field(default=False, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
+    hard_brakings: list[HardBraking] = field(default_factory=list, repr=False)
+    """Steps above the vType's emergencyDecel (what SUMO warns of), judged as braking beyond service or not."""
 
 
 class HealthMonitor:
@@ -86,6 +152,8 @@ class HealthMonitor:
         self._margin_m = model.margin_m
         self._dead_s = model.dead_time_s
         self._service_floor = {t.id: self._floor_terms(t.stock) for t in trains}
+        # SUMO warns above its vType's emergencyDecel (the drawn "true" train's when it runs as a variant)
+        self._sumo_warn = {t.id: getattr(t.stock, "true_stock", t.stock).sumo_emergency_decel_mps2 - SUMO_WARNING_SLACK_MPS2 for t in trains}
 
     def _floor_terms(self, stock) -> tuple[float, float, float, float, float]:
         """(hardest service brake, Davis A, B, C at the top of their box, lowest mass) of a train."""
@@ -131,7 +199,7 @@ class HealthMonitor:
         return rule
 
     def step(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, authority_m: float = math.inf,
-             driven_by_sumo: bool = True, leader_id: str | None = None, leader_v_mps: float = 0.0) -> float | None:
+             driven_by_sumo: bool = True, leader_id: str | None = None, leader_v_mps: float = 0.0, time_s: float = math.nan) -> float | None:
         """One step of one train (as :meth:`update`), the safe separation evaluated only where it can
         change a counter: relative braking behind ``leader_id`` (a coupled follower), else absolute.
 
@@ -140,7 +208,7 @@ class HealthMonitor:
         far (and by more than −tolerance), the margin can neither set a new minimum nor fall below
         the separation, so the rule is not evaluated: every counter and the minimum margin are
         the same as when it is evaluated at every step.  Returns the safe separation when the gap
-        has just fallen below it, else None."""
+        has just fallen below it, else None.  ``time_s``: the simulated time (of SUMO's warnings)."""
         h = self.trains[train_id]
         if gap_m < math.inf:
             relative = leader_id is not None and leader_id in self.plans
@@ -149,11 +217,13 @@ class HealthMonitor:
             if s_m < 0.0 or gap_m - self._margin_m - br.stopping_bound(v_mps, self._dead_s) < floor:
                 required = (self.relative_gap(train_id, s_m, v_mps, leader_id, gap_m, leader_v_mps) if relative
                             else self.absolute_gap(train_id, s_m, v_mps))
-                return required if self.update(train_id, dt, s_m, v_mps, accel_mps2, gap_m, required, authority_m, driven_by_sumo) else None
-        self.update(train_id, dt, s_m, v_mps, accel_mps2, math.inf, math.inf, authority_m, driven_by_sumo)
+                return required if self.update(train_id, dt, s_m, v_mps, accel_mps2, gap_m, required, authority_m, driven_by_sumo, time_s) else None
+        self.update(train_id, dt, s_m, v_mps, accel_mps2, math.inf, math.inf, authority_m, driven_by_sumo, time_s)
         return None
 
     def _service_limit(self, train_id: str, s_m: float, v_mps: float) -> float:
+        """The strongest service deceleration with the front at s at speed v (the brake at the top of
+        its box, the running resistance at v + 1 m/s, the steepest up-grade under the train), m/s²."""
         p = self.plans[train_id]
         h = self.trains[train_id]
         _, g_high = p.profile.gradient_range(s_m - p.stock.length_m, s_m)
@@ -186,7 +256,7 @@ class HealthMonitor:
         return limit
 
     def update(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, required_gap_m: float,
-               authority_m: float = math.inf, driven_by_sumo: bool = True) -> bool:
+               authority_m: float = math.inf, driven_by_sumo: bool = True, time_s: float = math.nan) -> bool:
         """One step of one train; True when its gap has just fallen below the safe separation."""
         h = self.trains[train_id]
         p = self.plans[train_id]
@@ -225,6 +295,9 @@ class HealthMonitor:
         if beyond and not h._beyond:
             h.beyond_service_events += 1
         h._beyond = beyond
+        if decel > self._sumo_warn[train_id]:  # a step SUMO may warn of: judged by the same rule, whoever drives
+            _, g_high = p.profile.gradient_range(s_m - p.stock.length_m, s_m)
+            h.hard_brakings.append(HardBraking(time_s, s_m, v_mps, decel, self._service_limit(train_id, s_m, v_mps), 1000.0 * g_high, driven_by_sumo))
         # end of movement authority: passing it (moving beyond it) is an overrun; a train standing where
         # it was placed (a departure at a platform whose exit signal stands at its front) passed nothing
         past = driven_by_sumo and authority_m < -AUTHORITY_TOLERANCE_M
@@ -258,3 +331,62 @@ class HealthMonitor:
             "authority_overruns": h.overruns, "max_overrun_m": round(h.max_overrun_m, 2),
             "collisions": h.collisions, "max_impact_kmh": round(h.max_impact_kmh, 2),
         }
+
+    # ------------------------------------------------------------------------------------------
+    def judge_sumo_emergency_brakings(self, log: SumoLogCounts, step_s: float) -> SumoBrakingVerdict:
+        """SUMO's 'performs emergency braking' warnings judged one by one against the steps recorded
+        at which a train decelerated above its vType's emergencyDecel (see the module doc).
+
+        A written warning is matched to its train's recorded step one step length after its time
+        (SUMO stamps the start of the step, the loop observes its end; within half a step,
+        decelerations within :data:`SUMO_DECEL_MATCH_MPS2`): explained when that step braked within
+        the service brake, real when beyond it or when no step matches.  Warnings SUMO only counted
+        (``--aggregate-warnings``: the total exceeds the written ones) are judged by the recorded steps
+        no written warning took: real are at least those beyond service and any the steps within
+        service cannot account for — the count is never lowered below what the records justify."""
+        v = SumoBrakingVerdict(warnings=log.emergency_braking)
+        pool = {tid: list(h.hard_brakings) for tid, h in self.trains.items() if h.hard_brakings}
+        half = 0.5 * step_s + 1e-6
+        written = log.emergency_braking_events
+        for ev in written:
+            t_end = ev.time_s + step_s  # SUMO stamps the step's start, the loop observes its end
+            cands = [r for r in pool.get(ev.vehicle, ()) if abs(r.time_s - t_end) <= half and abs(r.decel_mps2 - ev.decel_mps2) <= SUMO_DECEL_MATCH_MPS2]
+            rec = min(cands, key=lambda r: abs(r.time_s - t_end)) if cands else None
+            if rec is None:
+                v.real += 1
+                v.rows.append(_row(t_end, ev.vehicle, None, ev, "real", "no step of the train at that time decelerated above its vType's emergencyDecel"))
+                continue
+            pool[ev.vehicle].remove(rec)
+            verdict = "real" if rec.beyond_service else "explained"
+            v.real += verdict == "real"
+            v.explained += verdict == "explained"
+            v.rows.append(_row(rec.time_s, ev.vehicle, rec, ev, verdict, _reason(rec)))
+        rest = [(tid, r) for tid, rs in pool.items() for r in rs]
+        within = sum(not r.beyond_service for _, r in rest)
+        beyond = len(rest) - within
+        n_rest = max(0, v.warnings - len(written))
+        real_rest = max(n_rest - within, min(n_rest, beyond))
+        v.real += real_rest
+        v.explained += n_rest - real_rest
+        for tid, r in sorted(rest, key=lambda x: (x[1].time_s, x[0])):
+            v.rows.append(_row(r.time_s, tid, r, None, "real" if r.beyond_service else "explained", _reason(r)))
+        v.rows.sort(key=lambda row: (row["time_s"], row["train"]))
+        return v
+
+
+def _reason(r: HardBraking) -> str:
+    terms = f"service brake at the top of its box, running resistance and {r.gradient_permille:+.1f} ‰ under the train"
+    if r.beyond_service:
+        return f"beyond the service brake: {r.decel_mps2:.3f} m/s² > {r.service_limit_mps2:.3f} m/s² ({terms})"
+    return f"within the service brake: {r.decel_mps2:.3f} m/s² <= {r.service_limit_mps2:.3f} m/s² ({terms})"
+
+
+def _row(time_s: float, train: str, rec: HardBraking | None, ev: SumoEmergencyBraking | None, verdict: str, reason: str) -> dict:
+    return {
+        "time_s": time_s, "train": train, "lane": ev.lane if ev else None,
+        "decel_mps2": round(rec.decel_mps2, 4) if rec else None, "sumo_decel_mps2": ev.decel_mps2 if ev else None,
+        "wished_mps2": ev.wished_mps2 if ev else None, "severity": ev.severity if ev else None,
+        "service_limit_mps2": round(rec.service_limit_mps2, 4) if rec else None,
+        "gradient_permille": round(rec.gradient_permille, 2) if rec else None, "speed_mps": round(rec.speed_mps, 3) if rec else None,
+        "driven_by_sumo": rec.driven_by_sumo if rec else None, "in_sumo_log": ev is not None, "verdict": verdict, "reason": reason,
+    }

@@ -348,7 +348,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 perm = perms[i]
                 coupled = lead is not None and controlled and lead[0] in obs  # relative braking behind the train ahead
                 required = health.step(vid, dt, s_now, speed, accel, gap, perm.authority_m if perm else math.inf, not controlled,
-                                       lead[0] if coupled else None, obs[lead[0]][2] if coupled else 0.0)
+                                       lead[0] if coupled else None, obs[lead[0]][2] if coupled else 0.0, t)
                 if required is not None:
                     sec, km_v = tr.plan.profile.km_at(s_now)  # the gap just fell below the safe separation
                     violation_rows.append((t, vid, lead[0] if lead else None, sec, round(km_v, 4), speed, gap, required, controlled))

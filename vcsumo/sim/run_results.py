@@ -13,7 +13,7 @@ import pandas as pd
 
 from vcsumo.errors import SumoError
 from vcsumo.results import write_csv
-from vcsumo.sim.health import HealthMonitor
+from vcsumo.sim.health import SUMO_BRAKING_COLUMNS, HealthMonitor
 from vcsumo.sim.sumo_io import read_sumo_log
 
 TRAJECTORY_COLUMNS = ["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"]
@@ -102,6 +102,7 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
     scheduled = {t.id: list(t.stops) + ([t.final_stop] if t.final_stop is not None else []) for t in scn.trains}
     served = stops.groupby(["train", "platform"]).size().to_dict() if len(stops) else {}
     warnings = read_sumo_log(out / "sumo_errors.log")
+    braking = health.judge_sumo_emergency_brakings(warnings, scn.step_length_s)  # each SUMO emergency braking: real or grade-assisted
     rows = []
     for t in scn.trains:
         tr = state.get(t.id)
@@ -146,7 +147,8 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         "max_decel_mps2": float(trains_df["max_decel_mps2"].max()) if len(trains_df) else 0.0,
         "authority_overruns": int(trains_df["authority_overruns"].sum()),
         "sumo_emergency_stops": warnings.emergency_stops, "sumo_stop_warnings": warnings.stop_warnings,
-        "sumo_emergency_brakings": warnings.emergency_braking, "sumo_collision_warnings": warnings.collisions,
+        "sumo_emergency_brakings": braking.real, "sumo_emergency_warnings": braking.warnings,
+        "sumo_emergency_warnings_explained": braking.explained, "sumo_collision_warnings": warnings.collisions,
         "emergency_brakes": int(trains_df["emergency_brakes"].sum()), "teleports": len(teleports),
         "simulated_until_s": sim_end, **(extra or {}),
     }
@@ -157,6 +159,8 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         and summary["sumo_emergency_brakings"] == 0
     )
     passages.to_csv(out / "passages.csv", index=False)
+    if braking.rows:
+        write_csv(pd.DataFrame(braking.rows, columns=SUMO_BRAKING_COLUMNS), out / "sumo_emergency_brakings.csv")
     write_csv(stops, out / "stop_events.csv")
     write_csv(trains_df, out / "summary.csv")
     io = time.perf_counter() - t_io

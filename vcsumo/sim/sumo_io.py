@@ -16,6 +16,16 @@ message of the type, the N written ones included.  :func:`read_sumo_log` therefo
 that has a total line by its total, and the lines written for it are not counted again.  Values
 replaced by ``%`` are lost: a total line of emergency stops does not say which were at a red
 signal, hence :attr:`SumoLogCounts.emergency_stops_at_red_signal` is a lower bound.
+
+SUMO 1.28 writes an emergency braking as ``Warning: Vehicle 'F' performs emergency braking on lane
+'main_up_7_0' with decel=0.74, wished=0.50, severity=1.31, time=383.50.`` — ``decel`` the speed the
+train lost in the step over the step length (grade and resistance included), ``wished`` the vType's
+``decel``, ``severity`` = (decel − wished) / (emergencyDecel − wished) (above 1: beyond the vType's
+``emergencyDecel``), ``time`` the simulated time at the start of the step (the loop observes the
+train's new speed one step length later).  The written ones are kept
+one by one (:class:`SumoEmergencyBraking`, :attr:`SumoLogCounts.emergency_braking_events`) so that
+the run-health monitor can judge each against what the train's brake did
+(:meth:`vcsumo.sim.health.HealthMonitor.judge_sumo_emergency_brakings`).
 """
 
 from __future__ import annotations
@@ -23,7 +33,7 @@ from __future__ import annotations
 import os
 import re
 import xml.etree.ElementTree as ET
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import pandas as pd
@@ -144,6 +154,22 @@ def read_signal_switches(files: list[Path]) -> pd.DataFrame:
 # The warning and error log
 
 
+@dataclass(frozen=True)
+class SumoEmergencyBraking:
+    """One 'performs emergency braking' warning as SUMO wrote it (SI units)."""
+
+    vehicle: str
+    lane: str
+    time_s: float
+    """Simulated time SUMO stamped it with, s."""
+    decel_mps2: float
+    """The train's deceleration over the step (its speed change / step length), m/s²."""
+    wished_mps2: float
+    """The vType's ``decel``, m/s²."""
+    severity: float
+    """(decel − wished) / (emergencyDecel − wished): above 1 beyond the vType's emergencyDecel."""
+
+
 @dataclass
 class SumoLogCounts:
     """SUMO's warnings and errors of one run, by kind (see the module doc for aggregated totals)."""
@@ -165,9 +191,15 @@ class SumoLogCounts:
     """Every other warning."""
     errors: int = 0
     """Lines starting with 'Error:'."""
+    emergency_braking_events: list[SumoEmergencyBraking] = field(default_factory=list)
+    """The emergency brakings SUMO wrote one by one (with ``--aggregate-warnings N`` the first N;
+    :attr:`emergency_braking` counts them all)."""
 
     def as_dict(self) -> dict[str, int]:
-        return asdict(self)
+        """The counts by kind (the events are not counts: :attr:`emergency_braking_events`)."""
+        d = asdict(self)
+        d.pop("emergency_braking_events")
+        return d
 
 
 _PREFIXES = ("Warning: ", "Error: ")
@@ -183,6 +215,35 @@ _KINDS = (  # first match wins; each pattern also matches the message's format (
 _TELEPORT_END_RE = re.compile(r"ends teleporting")
 _QUOTED_RE = re.compile(r"'[^']*'")
 _RED_SIGNAL_RE = re.compile(r"because of a red traffic light")
+_NUMBER = r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|-?nan|-?inf)"
+_EMERGENCY_BRAKING_RE = re.compile(
+    r"^Vehicle '(.*)' performs emergency braking on lane '(.*)' with decel=" + _NUMBER + r", wished=" + _NUMBER
+    + r", severity=" + _NUMBER + r", time=(-?[\d:]+(?:\.\d*)?)\.?$")
+
+
+def sumo_time_s(text: str) -> float:
+    """A time as SUMO writes it: seconds (``383.50``) or, with ``--human-readable-time``,
+    ``[d:]h:mm:ss[.ss]``, in s."""
+    parts = text.split(":")
+    if len(parts) == 1:
+        return float(text)
+    scale = (1.0, 60.0, 3600.0, 86400.0)
+    if len(parts) > len(scale):
+        raise ValueError(f"not a SUMO time: {text!r}")
+    sign = -1.0 if parts[0].startswith("-") else 1.0
+    return sign * sum(abs(float(p)) * f for p, f in zip(reversed(parts), scale))
+
+
+def parse_emergency_braking(body: str) -> SumoEmergencyBraking | None:
+    """The warning's text after ``Warning: `` as a :class:`SumoEmergencyBraking` (None: not one,
+    or its values are aggregated away as ``%``)."""
+    m = _EMERGENCY_BRAKING_RE.match(body.strip())
+    if m is None:
+        return None
+    try:
+        return SumoEmergencyBraking(m.group(1), m.group(2), sumo_time_s(m.group(6)), float(m.group(3)), float(m.group(4)), float(m.group(5)))
+    except ValueError:
+        return None
 
 
 def _kind(prefix: str, body: str) -> str | None:
@@ -231,6 +292,10 @@ def read_sumo_log(path: Path) -> SumoLogCounts:
         kind = _kind(prefix, body)
         if kind == "emergency_stops" and _RED_SIGNAL_RE.search(body):
             counts.emergency_stops_at_red_signal += 1
+        if kind == "emergency_braking":
+            ev = parse_emergency_braking(body)
+            if ev is not None:
+                counts.emergency_braking_events.append(ev)
         if kind is None or any(p == prefix and rx.match(body) for p, rx in aggregated):
             continue  # counted by its type's total
         setattr(counts, kind, getattr(counts, kind) + 1)
