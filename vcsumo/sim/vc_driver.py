@@ -207,7 +207,8 @@ class VCDriver:
                 ego.shares_platforms = True
                 stack = build_follower_stack(controller, StackContext(
                     ego=ego.stock, predecessor=pred.stock, step_s=step_s, profile=ego.profile, supervisor_params=cbf_config, guard=self.guard,
-                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions))
+                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions,
+                    message_age_s=self.channel.cfg.age_budget_s()))
                 if getattr(stack.supervisor, "record", None):
                     stack.supervisor.record = False  # its barrier history is read by no output of a SUMO run (the records carry the barrier)
                 frames = {}

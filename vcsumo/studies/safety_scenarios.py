@@ -47,6 +47,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from vcsumo.config import StrictModel
+from vcsumo.control.channel import ChannelConfig
 from vcsumo.control.proxies import sample_params
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import TrainParams
@@ -298,14 +299,16 @@ _REUSE: dict = {}
 :class:`~vcsumo.control.registry.StackContext`."""
 
 
-def follower_stacks_for(controller: str, route: LineRoute, ids: list[str], cfg: SafetyCampaign, stocks: list[RollingStock] | None = None) -> list[FollowerStack]:
+def follower_stacks_for(controller: str, route: LineRoute, ids: list[str], cfg: SafetyCampaign, stocks: list[RollingStock] | None = None,
+                        channel: ChannelConfig | None = None) -> list[FollowerStack]:
     """Every follower's stack, built by the registry exactly as the SUMO loop builds it (nominal
     controller → CBF supervisor for ``cbf-`` names → separation guard → fault stage), with the
-    campaign's ATO cycle (``control_period_s``), odometry error bound and assumption set;
-    ``stocks`` the convoy's trains, leader first (default: the line's train)."""
+    campaign's ATO cycle (``control_period_s``), odometry error bound and assumption set, and the
+    message age the scenario's ``channel`` keeps (:meth:`ChannelConfig.age_budget_s`, as the SUMO
+    loop passes its channel's); ``stocks`` the convoy's trains, leader first (default: the line's train)."""
     return follower_stacks(controller, stocks or [route.stock] * len(ids), ids, cfg.step_s, route.profile, supervisor_params=cfg.cbf_config,
                            control_period_s=cfg.control_period_s, position_error_m=cfg.position_error_max_m, record=False, reuse=_REUSE,
-                           assumptions=campaign_assumptions(cfg.assumptions))
+                           assumptions=campaign_assumptions(cfg.assumptions), message_age_s=channel.age_budget_s() if channel is not None else None)
 
 
 def initial_gaps(spec: ScenarioSpec, stacks: list[FollowerStack], stocks: list[RollingStock], rules: list[RelativeBraking], model: SeparationModel,
