@@ -220,10 +220,7 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     # the leader's emergency brake at the top of its range; every other parameter drawn
     params = [true_params(stocks[k], rng, c, emergency_top=(k == 0), assumptions=a) for k, c in enumerate(spec.corners)]
     ids = [f"T{k}" for k in range(n)]
-    outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
-    channel_cfg = ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
-                                loss_probability=spec.loss_probability, outages=outages, seed=spec.seed)
-    stacks = follower_stacks_for(controller, route, ids, cfg, stocks, channel_cfg)
+    stacks = follower_stacks_for(controller, route, ids, cfg, stocks)
     rules = [RelativeBraking(model, stocks[k], stocks[k - 1], prof) for k in range(1, n)]
     positions, speeds, gaps0 = initial_gaps(spec, stacks, stocks, rules, model, prof)
 
@@ -235,7 +232,9 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     cap_f = capped_profile(prof, max(max(speeds), 1.0))
     free_runs = [_unhindered(stocks[k].params(), cap_f, positions[k], speeds[k], horizon) for k in range(1, n)]
 
-    channel = Channel(channel_cfg)
+    outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
+    channel = Channel(ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
+                                    loss_probability=spec.loss_probability, outages=outages, seed=spec.seed))
     e_s = spec.position_error_m
     odometry = Odometry(rng.uniform(-0.5 * e_s, 0.5 * e_s, size=n), e_s, rng)
     leader = CampaignLeader(lead_run, stocks[0].params(), spec.brake_time_s, dt)
