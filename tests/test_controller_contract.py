@@ -154,16 +154,19 @@ def test_registered_controllers_have_their_default_files_and_plans_flag():
     assert CONTROLLERS["mpc"].uses_plans and CONTROLLERS["cruise"].uses_plans and not CONTROLLERS["cbc"].uses_plans
     assert not CONTROLLERS["cruise"].standalone and "cruise" not in controller_names() and "cbf-cruise" in controller_names()
     # cbc tracks the certified spacing: the separation model's relative-braking gap (+ its 10 m buffer),
-    # the follower's brake building up from the force that holds 40 m/s (Davis 8,800 + 61.8 v + 8.7 v²):
-    # τ + (F/M̲ + b)/(2j) more dead time, at the speed that force may add meanwhile
+    # the follower's brake building up from the largest traction it may apply at 40 m/s (the top of its
+    # box, min(M̄·ā, P̄/v) = min(540 t · 0.80, 10.1 MW / 40) = 252.5 kN; the force that holds 40 m/s,
+    # Davis 8,800 + 61.8 v + 8.7 v² ≈ 25 kN, is less): τ + (F/M̲ + b)/(2j) more dead time, at the speed
+    # that force may add meanwhile
     from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.signalling.separation import SeparationModel, relative_braking_gap
 
     model = SeparationModel(load_assumptions())
     gap40 = build_follower_stack("cbc", StackContext(ego=STOCK, predecessor=STOCK, step_s=DT)).coupled_gap_m(40.0)
-    f_hold = 8800.0 + 61.8 * 40.0 + 8.7 * 40.0**2
-    t_act = 0.5 + (f_hold / 461e3 + 1.08) / (2 * 0.7)
-    v_dead = 40.0 + f_hold / (1.04 * 461e3) * t_act
+    f_top = min(540e3 * 0.80, 10.1e6 / 40.0)
+    assert f_top > 8800.0 + 61.8 * 40.0 + 8.7 * 40.0**2
+    t_act = 0.5 + (f_top / 461e3 + 1.08) / (2 * 0.7)
+    v_dead = 40.0 + f_top / (1.04 * 461e3) * t_act
     a_f, a_l = model.vc_decels(STOCK, STOCK, 40.0, 40.0)
     dead = model.dead_time_s + model.assumptions.t2t_delay_bound_s + 1.5 * DT + t_act
     assert math.isclose(gap40, model.margin_m + relative_braking_gap(v_dead, 40.0, a_f, a_l, dead) + 10.0)

@@ -121,8 +121,9 @@ def test_under_the_leaders_emergency_brake_both_stacks_keep_their_distance(cruis
     assert sup["separation_violations"] == 0 and sup["collisions"] == 0 and sup["min_gap_m"] >= 70.0 and sup["min_margin_m"] >= 0.0
     assert sup["emergency_activations"] >= 1
     # consensus control behind a leader braking at 1.32 m/s² is held by the separation guard (the separation
-    # model's relative braking on what the channel delivered): no collision, the margin kept, closer than the CBF
-    assert raw["collisions"] == 0 and 70.0 <= raw["min_gap_m"] <= sup["min_gap_m"] + 1e-6
+    # model's relative braking on what the channel delivered): no collision, the margin kept (as close as
+    # under the CBF: 80.6 and 80.5 m, now that cbc's spacing budgets the channel's message age)
+    assert raw["collisions"] == 0 and raw["separation_violations"] == 0 and raw["min_gap_m"] >= 70.0 and raw["min_margin_m"] >= 0.0
 
 
 def test_cli_campaign_writes_table_report_and_plot(tmp_path, capsys):

@@ -76,8 +76,11 @@ def test_cbf_supervision_keeps_the_safe_separation_under_the_leaders_emergency_b
     assert sup["min_margin_m"] >= 0.0 and sup["min_gap_m"] >= 70.0  # margin + 2 position errors of etcs_typical
     assert sup["initial_true_barrier_m"] <= 0.0 and sup["max_true_barrier_m"] <= 1e-6
     assert sup["emergency_activations"] >= 1
-    # the consensus controller has no barrier; the CBF leaves it more room to the rule
-    assert math.isnan(raw["max_true_barrier_m"]) and raw["min_margin_m"] < sup["min_margin_m"]
+    # the consensus controller has no barrier; its separation guard keeps the rule too.  (Until cbc's
+    # spacing budgeted the channel's message age and the build-up from full traction, the CBF rode its
+    # boundary — 55 one-step emergency brakings, 27 s — and so left 0.5 m more room than cbc alone; now
+    # 36 and 13.6 s, and the two minimum margins are within 0.1 m, 6.55 and 6.65 m.)
+    assert math.isnan(raw["max_true_barrier_m"]) and raw["separation_violations"] == 0 and raw["min_margin_m"] >= 0.0
 
 
 def test_violation_bound_is_the_rule_of_three_or_clopper_pearson():

@@ -12,6 +12,13 @@ nothing is delivered; ``degradations`` are windows with their own (worse) delay/
 are delivered in send order per link (a late message never overtakes a newer delivered one).
 The same seed gives the same deliveries.  Controllers only see what :meth:`Channel.deliver`
 returns (plus on-board sensing).
+
+:meth:`ChannelConfig.age_budget_s` is the age of the newest message a follower holds that the
+channel keeps with probability :data:`AGE_QUANTILE` per sending period (from its period, delay
+law and loss; outages and degradations are exceptions it does not budget): the age the nominal
+controller's certified spacing budgets (:class:`vcsumo.control.gap_reference.SeparationGap`), so
+that it does not track a spacing the CBF and the separation guard — which use the true age —
+consider unsafe whenever a packet is a little late.
 """
 
 from __future__ import annotations
@@ -26,6 +33,15 @@ from pydantic import Field
 
 from vcsumo.config import StrictModel
 from vcsumo.control.base import Message
+
+AGE_QUANTILE = 0.99
+"""Probability per sending period with which the channel keeps the newest message a follower holds
+within :meth:`ChannelConfig.age_budget_s` [A]: the rest (1 %: at 2 Hz at most 72 excursions per
+follower-hour) is left to the safety layers, which act on the true age."""
+
+AGE_SEARCH_MAX_S = 600.0
+"""Longest age budget searched, s (a channel that loses nearly everything: the budget is capped here)."""
+
 
 
 class Window(StrictModel):
@@ -56,6 +72,60 @@ class ChannelConfig(StrictModel):
     outages: list[Window] = Field(default_factory=list, description="Windows without any delivery")
     degradations: list[Degradation] = Field(default_factory=list, description="Windows with worse delay/loss")
     seed: int = Field(default=0, ge=0, description="Seed of the channel's random numbers (numpy needs it not negative)")
+
+    def age_budget_s(self, quantile: float = AGE_QUANTILE) -> float:
+        """The message age this channel keeps with probability ``quantile`` per sending period, s
+        (:func:`age_budget_s`)."""
+        return age_budget_s(self, quantile)
+
+
+def _delay_exceedance(cfg: ChannelConfig, x_s: float) -> float:
+    """P(delay > x) of the channel's delay law (no degradation window), -."""
+    if cfg.model == "ideal":
+        return 1.0 if x_s < 0.0 else 0.0
+    if cfg.model == "constant":
+        return 1.0 if x_s < cfg.delay_s else 0.0
+    if cfg.model == "exponential":
+        if x_s < cfg.delay_s:
+            return 1.0
+        return math.exp(-(x_s - cfg.delay_s) / cfg.mean_extra_s) if cfg.mean_extra_s > 0 else 0.0
+    return sum(1 for d in cfg.samples_s if d > x_s) / len(cfg.samples_s)
+
+
+def age_exceedance(cfg: ChannelConfig, age_s: float) -> float:
+    """Probability that the newest message a receiver holds grows older than ``age_s`` before a newer
+    one arrives, counted from a message's send time: none of the messages sent after it, every
+    ``period_s``, is delivered within ``age_s`` of it — Π_k [p + (1 − p)·P(D > age − k·P)] over
+    k = 1 … ⌊age/P⌋ (each lost with p or later than its remaining time, independently), -.
+
+    Each excursion of the age beyond ``age_s`` starts at the newest message then held, so the
+    expected number of excursions per sending period is at most this value (outages and
+    degradation windows aside)."""
+    p, period = cfg.loss_probability, cfg.period_s
+    prob = 1.0
+    k = 1
+    while k * period <= age_s + 1e-12:
+        prob *= p + (1.0 - p) * _delay_exceedance(cfg, age_s - k * period)
+        if prob == 0.0:
+            break
+        k += 1
+    return prob
+
+
+def age_budget_s(cfg: ChannelConfig, quantile: float = AGE_QUANTILE) -> float:
+    """The smallest age B with :func:`age_exceedance` (B) ≤ 1 − ``quantile``, s (bisection to 1 ms;
+    :data:`AGE_SEARCH_MAX_S` when even that is not enough)."""
+    target = 1.0 - quantile
+    if age_exceedance(cfg, AGE_SEARCH_MAX_S) > target:
+        return AGE_SEARCH_MAX_S
+    lo, hi = 0.0, AGE_SEARCH_MAX_S  # the exceedance does not increase with the age
+    while hi - lo > 1e-3:
+        mid = 0.5 * (lo + hi)
+        if age_exceedance(cfg, mid) <= target:
+            hi = mid
+        else:
+            lo = mid
+    return hi
 
 
 class Channel:

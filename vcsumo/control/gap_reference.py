@@ -44,6 +44,7 @@ from typing import Protocol, Sequence
 from pydantic import Field
 
 from vcsumo.config import StrictModel
+from vcsumo.dynamics import V_EPS_MPS
 
 
 @dataclass(frozen=True)
@@ -350,13 +351,25 @@ class SeparationGap:
     relative-braking rule needs (:class:`vcsumo.signalling.separation.RelativeBraking`, on the
     follower's route when it is known) at the follower's speed, the predecessor at its reported speed
     when that is lower (else at the follower's: the coupled spacing), with the dead time,
-    the assumption set's message-age bound and ``extra_delay_s`` (e.g. 1.5 loop steps), plus the
-    follower's brake build-up from the force that holds its speed there (the separation guard's
-    :class:`~vcsumo.control.brake_build_up.BrakeBuildUp`: its equivalent dead time, and the speed it may gain
-    meanwhile), plus ``buffer_m`` — so a controller tracking it stays just outside what the guard
-    enforces."""
+    the message age it budgets and ``extra_delay_s`` (e.g. 1.5 loop steps), plus the
+    follower's brake build-up from the largest force it may apply there — its full traction at that
+    speed (the top of its box: min(M̄·ā, P̄/v)), or the force that holds the speed where that is
+    larger — (the separation guard's :class:`~vcsumo.control.brake_build_up.BrakeBuildUp`: its
+    equivalent dead time, and the speed it may gain meanwhile), plus ``buffer_m`` — so a controller
+    tracking it stays just outside what the guard and the CBF enforce, also while it follows an
+    accelerating predecessor at full traction (the CBF's barrier and the guard count the build-up
+    from the force applied: from full traction it is ≈ 0.6 s longer than from coasting for a
+    regional EMU).
 
-    def __init__(self, model, follower, leader, profile=None, extra_delay_s: float = 0.0, buffer_m: float = 10.0):
+    The message age budgeted is the larger of the assumption set's bound (``t2t_delay_bound_s``: the
+    spacing of the analytic capacity) and ``message_age_s``, the age the channel the follower runs on
+    keeps (:meth:`vcsumo.control.channel.ChannelConfig.age_budget_s`).  The CBF and the guard act on
+    the true age of the newest message: with a channel slower than the set says, a reference on the
+    set's bound alone sits inside their boundary whenever a packet is a little late, and the CBF's
+    only answer there is its emergency brake (README, *Known gaps*)."""
+
+    def __init__(self, model, follower, leader, profile=None, extra_delay_s: float = 0.0, buffer_m: float = 10.0,
+                 message_age_s: float | None = None):
         from vcsumo.control.brake_build_up import BrakeBuildUp
         from vcsumo.signalling.separation import RelativeBraking
 
@@ -365,21 +378,31 @@ class SeparationGap:
         self.params = follower.params()
         self.profile = profile
         self.rule = RelativeBraking(model, follower, leader, profile) if profile is not None else None
-        self.delay_s = model.dead_time_s + model.assumptions.t2t_delay_bound_s + extra_delay_s
+        self.message_age_s = max(model.assumptions.t2t_delay_bound_s, message_age_s if message_age_s is not None else 0.0)
+        """The age of the predecessor's newest message budgeted, s."""
+        self.delay_s = model.dead_time_s + self.message_age_s + extra_delay_s
         self.build_up = BrakeBuildUp(follower, model.assumptions)
+        box = follower.uncertainty_box()
+        self.power_top_w = box.max_power_w.high if box.max_power_w is not None else self.params.max_power_w
+        """The follower's largest traction power (the top of its box), W."""
         self.buffer_m = buffer_m
 
+    def traction_top_n(self, speed_mps: float) -> float:
+        """The largest traction any train of the follower's box applies at ``speed_mps``: min(M̄·ā, P̄/v), N."""
+        return min(self.build_up.full_traction_n, self.power_top_w / max(speed_mps, V_EPS_MPS))
+
     def build_up_at(self, speed_mps: float, position_m: float | None = None) -> tuple[float, float]:
-        """(speed held, equivalent dead time) of the follower's brake build-up from the force that
-        holds ``speed_mps`` (its running resistance and the gradient where it is; level track
-        without a position), m/s and s (:meth:`~vcsumo.control.brake_build_up.BrakeBuildUp.held`)."""
+        """(speed held, equivalent dead time) of the follower's brake build-up from the largest force
+        it may apply at ``speed_mps``: :meth:`traction_top_n`, or the force that holds the speed (its
+        running resistance and the gradient where it is; level track without a position) where that
+        is larger, m/s and s (:meth:`~vcsumo.control.brake_build_up.BrakeBuildUp.held`)."""
         from vcsumo.dynamics import gradient_force, running_resistance
 
         p = self.params
         on_route = self.rule is not None and position_m is not None
         grade = self.profile.mean_gradient(position_m, p.length_m) if on_route else 0.0
         tf = self.profile.tunnel_factor_at(position_m) if on_route else 1.0
-        force = float(running_resistance(p, speed_mps, tf) + gradient_force(p, grade))
+        force = max(float(running_resistance(p, speed_mps, tf) + gradient_force(p, grade)), self.traction_top_n(speed_mps))
         return self.build_up.held(self.rule.follower if on_route else None, position_m or 0.0, speed_mps, force)
 
     def gap_m(self, speed_mps: float, predecessor_speed_mps: float | None = None, position_m: float | None = None) -> float:

@@ -73,6 +73,11 @@ class StackContext:
     predecessor_id: str | None = None
     control_period_s: float | None = None
     """Period of the nominal controller (the ATO cycle; None: every step)."""
+    message_age_s: float | None = None
+    """The age of the predecessor's newest message the channel keeps
+    (:meth:`~vcsumo.control.channel.ChannelConfig.age_budget_s`), s: a certified spacing reference
+    (cbc) budgets the larger of it and the assumption set's bound (None: the set's bound); the
+    supervisor and the guard act on the true age whatever it is."""
     position_error_m: float = 0.0
     """Bound of the odometry error the supervisor and the guard must allow for (Felez eq. 9), m."""
     record: bool = True
@@ -255,7 +260,7 @@ def _build_cbc(ctx: StackContext, params) -> Nominal:
     from vcsumo.control.gap_reference import SeparationGap
 
     model = SeparationModel(ctx.assumptions or load_assumptions())
-    ctrl.default_gap = ref = SeparationGap(model, ctx.ego, ctx.predecessor, ctx.profile, 1.5 * ctx.step_s, prm.gap.buffer_m)
+    ctrl.default_gap = ref = SeparationGap(model, ctx.ego, ctx.predecessor, ctx.profile, 1.5 * ctx.step_s, prm.gap.buffer_m, ctx.message_age_s)
     return Nominal(ctrl, prm.gap.d_min_m, lambda v, position_m=None: ref.gap_m(v, v, position_m))  # the certified spacing (on the route's gradients)
 
 

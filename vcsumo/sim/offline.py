@@ -414,7 +414,7 @@ def simulate_convoy(
     for k in range(1, n):
         positions.append(positions[-1] - params[k - 1].length_m - gaps[k - 1])
     if isinstance(controller_factory, str):
-        drivers = follower_stacks(controller_factory, stocks, ids, dt, profile, recovery_s=recovery_s)
+        drivers = follower_stacks(controller_factory, stocks, ids, dt, profile, recovery_s=recovery_s, message_age_s=channel.cfg.age_budget_s())
     else:
         drivers = [controller_factory(ids[k]) for k in range(1, n)]
         if fault_handling:

@@ -178,7 +178,7 @@ class VCDriver:
     def __init__(self, convoys: list[list[PlannedTrain]], controller: str, step_s: float, seed: int = 42, channel: ChannelConfig | None = None,
                  cbf_config: str | None = None, plan_horizon_s: float = 8.0, record_every_s: float = 1.0, guard: GuardConfig | None = None,
                  plan_step_s: float = 0.5, fault_recovery_s: float = 1.0, assumptions: AssumptionSet | None = None,
-                 junction: JunctionPolicy | None = None):
+                 junction: JunctionPolicy | None = None, message_age_s: float | None = None):
         self.name, self.params_spec = parse_controller(controller)
         self.junction = junction  # link handshake, braking curves to lower limits and to the end of authority at merges
         self.assumptions = assumptions or load_assumptions()
@@ -197,6 +197,8 @@ class VCDriver:
         self.record_every_s = record_every_s
         self._next_record = -math.inf
         self._records, self._streaming = CsvStream(Path("vc_followers.csv"), VC_RECORD_COLUMNS, VC_RECORD_FLOATS, chunk_rows=1 << 62), False
+        # the message age the stacks' spacing budgets: what the channel keeps, or the caller's (a campaign's nominal channel)
+        stack_age = self.channel.cfg.age_budget_s() if message_age_s is None else message_age_s
         for members in convoys:
             ids = tuple(m.id for m in members)
             for m in members:
@@ -207,7 +209,7 @@ class VCDriver:
                 ego.shares_platforms = True
                 stack = build_follower_stack(controller, StackContext(
                     ego=ego.stock, predecessor=pred.stock, step_s=step_s, profile=ego.profile, supervisor_params=cbf_config, guard=self.guard,
-                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions))
+                    ego_id=ego.id, predecessor_id=pred.id, recovery_s=fault_recovery_s, assumptions=self.assumptions, message_age_s=stack_age))
                 if getattr(stack.supervisor, "record", None):
                     stack.supervisor.record = False  # its barrier history is read by no output of a SUMO run (the records carry the barrier)
                 frames = {}

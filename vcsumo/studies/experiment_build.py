@@ -238,7 +238,7 @@ def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile:
             files.append(sup)
     ctx = StackContext(ego=stocks[k], predecessor=stocks[k - 1], step_s=exp.step_s, profile=profile, params=nominal, supervisor_params=sup,
                        guard=tr.guard, base_dir=base_dir, field=f"{fld}.controller", ego_id=tr.id, predecessor_id=exp.trains[k - 1].id,
-                       control_period_s=tr.control_period_s)
+                       control_period_s=tr.control_period_s, message_age_s=channel_config(exp.channel, exp.step_s, 0).age_budget_s())
     try:
         stack = build_follower_stack(tr.controller, ctx)
     except InputError as exc:

@@ -54,6 +54,7 @@ from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.separation import RelativeBraking, SeparationModel, brake_range
+from vcsumo.sim.convoy_plan import load_channel
 from vcsumo.sim.offline import follower_stacks, steady_force
 
 SAFETY_CONTROLLERS = ("mpc", "cbc", "cbf-mpc", "cbf-cbc")
@@ -298,14 +299,29 @@ _REUSE: dict = {}
 :class:`~vcsumo.control.registry.StackContext`."""
 
 
+@lru_cache(maxsize=8)
+def _age_budget_s(period_s: float) -> float:
+    return load_channel(None).model_copy(update={"period_s": period_s}).age_budget_s()
+
+
+def stack_message_age_s(cfg: SafetyCampaign) -> float:
+    """The message age the followers' stacks are configured for, s: what the shipped default channel
+    (``controllers/channel.yaml``, the studies' channel) keeps at the campaign's message period
+    (:meth:`~vcsumo.control.channel.ChannelConfig.age_budget_s`; 1.35 s at 2 Hz).  Each scenario's
+    channel (its delays, losses and outages) is a disturbance the stack was not configured for, as a
+    degraded link is in service: the safety layers act on the true age."""
+    return _age_budget_s(float(cfg.channel_period_s))
+
+
 def follower_stacks_for(controller: str, route: LineRoute, ids: list[str], cfg: SafetyCampaign, stocks: list[RollingStock] | None = None) -> list[FollowerStack]:
     """Every follower's stack, built by the registry exactly as the SUMO loop builds it (nominal
     controller → CBF supervisor for ``cbf-`` names → separation guard → fault stage), with the
-    campaign's ATO cycle (``control_period_s``), odometry error bound and assumption set;
-    ``stocks`` the convoy's trains, leader first (default: the line's train)."""
+    campaign's ATO cycle (``control_period_s``), odometry error bound and assumption set, and the
+    message age of the channel it is configured for (:func:`stack_message_age_s`); ``stocks`` the
+    convoy's trains, leader first (default: the line's train)."""
     return follower_stacks(controller, stocks or [route.stock] * len(ids), ids, cfg.step_s, route.profile, supervisor_params=cfg.cbf_config,
                            control_period_s=cfg.control_period_s, position_error_m=cfg.position_error_max_m, record=False, reuse=_REUSE,
-                           assumptions=campaign_assumptions(cfg.assumptions))
+                           assumptions=campaign_assumptions(cfg.assumptions), message_age_s=stack_message_age_s(cfg))
 
 
 def initial_gaps(spec: ScenarioSpec, stacks: list[FollowerStack], stocks: list[RollingStock], rules: list[RelativeBraking], model: SeparationModel,
@@ -360,5 +376,5 @@ def spec_columns(spec: ScenarioSpec, prof: RouteProfile) -> dict:
 
 __all__ = [
     "SAFETY_CONTROLLERS", "KINDS", "SUMO_KINDS", "SafetyCampaign", "campaign_assumptions", "stock", "Junction", "LineRoute", "line_route",
-    "capped_profile", "ScenarioSpec", "draw_scenario", "true_params", "follower_stacks_for", "initial_gaps", "spec_columns",
+    "capped_profile", "ScenarioSpec", "draw_scenario", "true_params", "stack_message_age_s", "follower_stacks_for", "initial_gaps", "spec_columns",
 ]

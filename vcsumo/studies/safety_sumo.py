@@ -45,7 +45,8 @@ from vcsumo.signalling.separation import RelativeBraking, SeparationModel
 from vcsumo.sim.loop import Scenario, Snapshot, simulate
 from vcsumo.sim.vc_driver import VCDriver
 from vcsumo.studies.safety_scenarios import (
-    SafetyCampaign, ScenarioSpec, campaign_assumptions, follower_stacks_for, initial_gaps, line_route, spec_columns, stock, true_params,
+    SafetyCampaign, ScenarioSpec, campaign_assumptions, follower_stacks_for, initial_gaps, line_route, spec_columns, stack_message_age_s, stock,
+    true_params,
 )
 from vcsumo.timetable import PlannedTrain
 
@@ -131,7 +132,8 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
     outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
     channel = ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
                             loss_probability=spec.loss_probability, outages=outages)
-    vc = VCDriver([trains], controller, cfg.step_s, seed=spec.seed, channel=channel, cbf_config=cfg.cbf_config, assumptions=a)
+    vc = VCDriver([trains], controller, cfg.step_s, seed=spec.seed, channel=channel, cbf_config=cfg.cbf_config, assumptions=a,
+                  message_age_s=stack_message_age_s(cfg))
     driver = ConvoyEmergency(vc, ids[0], spec.brake_time_s, dict(zip(ids, params)), {t.id: t for t in trains}, cfg.step_s)
     # long enough for the leader to stop and the slowest follower to stop behind it
     v_top = max(speeds)
