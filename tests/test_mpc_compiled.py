@@ -203,6 +203,15 @@ class ReferenceNMPC:
             s_est = np.concatenate(([x0[0]], self._sim_out[0][:-1]))
         return self._sim_out[0].copy(), self._sim_out[1].copy()
 
+    def _speeds(self, z) -> np.ndarray:
+        """Speeds k = 1 … N for increments z with the gradient of the latest :meth:`simulate` (the speed floor)."""
+        zi = self._sim_in[1]
+        z_old = zi.copy()
+        zi[:] = z
+        self._sim_eval()
+        zi[:] = z_old
+        return self._sim_out[1].copy()
+
     def space_terms(self, lookup: RouteLookup | None, s_k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if lookup is None:
             return 0.0, 1.0
@@ -261,9 +270,9 @@ class ReferenceNMPC:
                 w = (cfg.k_v_leader, cfg.k_j_leader, float(v_scale_mps), 0.0)
             converge = max_iterations is not None
             iters = max_iterations or cfg.sqp_max_iterations
-            floor = speed_floor(self, x0, lookup)  # the speed limit is relaxed to this floor where it is above
-            relax = 0.0
             S, V = self.simulate(x0, z, lookup)  # a-priori estimate (eq. 14)
+            floor = speed_floor(self, x0, self._speeds)  # the speed limit is relaxed to this floor where it is above
+            relax = 0.0
             sol = None
             for it in range(1, iters + 1):
                 s_k = np.empty(N)

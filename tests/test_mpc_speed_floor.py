@@ -61,12 +61,17 @@ def holding_force(p, v: float) -> float:
     return float(acceleration(p, v, 0.0, DESCENT, 1.0)) * -p.mass_kg * p.rotating_mass_factor
 
 
+def floor_of(ocp, x0, lookup):
+    """The speed floor from x0 on a route (the model simulated along its own positions)."""
+    return speed_floor(ocp, x0, lambda z: np.array(ocp.simulate(x0, z, lookup)[1]))
+
+
 def test_no_admissible_plan_is_slower_than_the_floor(params, settings, descent):
     """Random plans within the jerk bounds and the service brake (4a, 4c) never go below the floor."""
     ctrl = LeaderMPC(params, settings)
     ocp, lookup = ctrl.ocp, ctrl.route_data(descent)[0]
     x0 = (1000.0, V_LIM, 60000.0)
-    floor = speed_floor(ocp, x0, lookup)
+    floor = floor_of(ocp, x0, lookup)
     rng = np.random.default_rng(7)
     lowest = np.full(ocp.N, np.inf)
     for _ in range(200):
@@ -87,7 +92,7 @@ def test_speed_limit_relaxed_only_where_unavoidable(params, settings, descent):
     v_lim wherever the floor allows, and reports the relaxation."""
     ctrl = LeaderMPC(params, settings)
     x0 = (1000.0, V_LIM - 0.01, 60000.0)
-    floor = speed_floor(ctrl.ocp, x0, ctrl.route_data(descent)[0])
+    floor = floor_of(ctrl.ocp, x0, ctrl.route_data(descent)[0])
     assert floor.max() - V_LIM > settings.tol_speed_mps  # unavoidable beyond the tolerance
     sol = ctrl.solve_arrays(x0, descent, v_max_mps=V_LIM)
     assert sol.ok, sol.violation

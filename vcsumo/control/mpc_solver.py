@@ -56,19 +56,20 @@ class MPCSolution:
         return np.append(self.z[1:], 0.0)
 
 
-def speed_floor(ocp, x0, lookup: RouteLookup | None) -> np.ndarray:
+def speed_floor(ocp, x0, speeds) -> np.ndarray:
     """The lowest speed the prediction model can reach at each step k = 1 … N from x0 = (s, v, F), m/s.
 
     The applied force comes down as fast as the model allows: at the jerk limit (4c/12o), each
     command u_k = F_k + ΔF_k/α within the service brake (4a) and the braking power (4b, at the
     speeds of this same plan); the force then holds the bound.  Since v_{k+1} grows with v_k and
-    with F_{k+1}, no admissible plan is slower at any step (up to the gradient at its own, slightly
-    different, positions), so a plan that starts at or just above a speed limit with a force that
-    the lag and the jerk limit cannot reverse in time exceeds the limit by at least ``floor − v_lim``
-    over the first steps: :meth:`CondensedNMPC.solve` relaxes the limit to max(v_lim, floor), only
-    where the floor is above it.  ``ocp`` is a :class:`CondensedNMPC` (or an object with its
-    ``N``, ``z_scale``, ``z_max``, ``alpha``, ``u_min``, ``p_br`` and ``simulate``); the model's
-    buffers are overwritten, so call it before the a-priori simulation of a solve.
+    with F_{k+1}, no admissible plan is slower at any step, so a plan that starts at or just above
+    a speed limit with a force that the lag and the jerk limit cannot reverse in time exceeds the
+    limit by at least ``floor − v_lim`` over the first steps: :meth:`CondensedNMPC.solve` relaxes
+    the limit to max(v_lim, floor), only where the floor is above it.  ``ocp`` is a
+    :class:`CondensedNMPC` (or an object with its ``N``, ``z_scale``, ``z_max``, ``alpha``,
+    ``u_min``, ``p_br``); ``speeds(z)`` gives the model's speeds k = 1 … N for increments z (the
+    solve evaluates the model with the gradient along its a-priori plan: the floor's own positions
+    are a few metres behind, which the gradient averaged over the train barely notices).
     """
     N, zs, zmax, alpha = ocp.N, ocp.z_scale, ocp.z_max, ocp.alpha
     u_lo = np.full(N, ocp.u_min)
@@ -78,12 +79,21 @@ def speed_floor(ocp, x0, lookup: RouteLookup | None) -> np.ndarray:
         if V is not None:  # braking power 4b at the speeds of the first pass: −P_br/v_k ≤ u_k
             v_prev = np.concatenate(((x0[1],), V[:-1]))
             np.maximum(u_lo, -ocp.p_br / np.maximum(v_prev, 1e-3), out=u_lo)
+            if not np.any(u_lo > ocp.u_min):  # the power bound does not bind: the first pass is the floor
+                break
         F = float(x0[2])
-        for k in range(N):
-            zk = min(max(-zmax, alpha * (u_lo[k] - F) / zs), zmax)
-            z[k] = zk
-            F += zk * zs
-        V = np.array(ocp.simulate(x0, z, lookup)[1], dtype=float)
+        d0, c = F - ocp.u_min, zmax * zs
+        if V is None and d0 >= 0.0 and alpha < 1.0:  # closed form: down at the jerk limit, then the lag's approach to u_min
+            k = np.arange(N + 1)
+            k1 = int(math.floor((d0 - c / alpha) / c)) + 1 if alpha * d0 >= c else 0  # steps at the jerk limit
+            d = np.where(k <= k1, d0 - k * c, (d0 - k1 * c) * (1.0 - alpha) ** np.maximum(k - k1, 0))
+            np.divide(np.diff(d), zs, out=z)
+        else:
+            for k in range(N):
+                zk = min(max(-zmax, alpha * (u_lo[k] - F) / zs), zmax)
+                z[k] = zk
+                F += zk * zs
+        V = np.array(speeds(z), dtype=float)
     return V
 
 
@@ -146,9 +156,11 @@ class CondensedNMPC(CondensedQP):
                 self.set_weights(cfg.k_v_leader, cfg.k_j_leader, float(v_scale_mps), 0.0)
             converge = max_iterations is not None
             iters = max_iterations or cfg.sqp_max_iterations
-            floor = speed_floor(self, x0, lookup)  # the speeds no plan can stay below (lag, jerk)
-            relax = 0.0
             S, V = self.simulate(x0, z, lookup)  # a-priori estimate (eq. 14); sets x0, z, grad, tf
+            S, V = S.copy(), V.copy()
+            floor = speed_floor(self, x0, self._speeds)  # the speeds no plan can stay below (lag, jerk)
+            self.z[:] = z
+            relax = 0.0
             F_N = f0 + self.z_scale * float(z.sum())
             varying = lookup is not None and not lookup.uniform
             sol = None
@@ -200,6 +212,12 @@ class CondensedNMPC(CondensedQP):
                            slacks=slacks, violation=viol, iterations=it, solve_time_s=time.perf_counter() - t_start, v_limit_mps=vlim,
                            v_terminal_mps=math.sqrt(max(beta, 0.0)), leader=leader, cost=float(cost),
                            speed_relaxation_mps=relax)
+
+    def _speeds(self, z: np.ndarray) -> np.ndarray:
+        """The model's speeds k = 1 … N for increments z from ``x0`` with the present ``grad`` and ``tf`` (overwrites ``z``)."""
+        self.z[:] = z
+        self._sim_eval()
+        return self._sim_out[1].copy()
 
     def _warm_z(self, z_warm) -> np.ndarray:
         """The warm start within the jerk bounds, padded with zeros to N, non-finite entries zero (a new array)."""
