@@ -19,7 +19,7 @@ import pytest
 from vcsumo.control.base import Message, Observation, TrainStateMsg
 from vcsumo.control.mpc import FollowerMPC, LeaderMPC, MPCSettings, load_mpc_settings
 from vcsumo.control.mpc_qp import CondensedQP
-from vcsumo.control.mpc_solver import MPCSolution
+from vcsumo.control.mpc_solver import MPCSolution, speed_floor
 from vcsumo.control.predictors import LeaderPrediction, lag_alpha
 from vcsumo.control.route_lookup import RouteLookup, route_profile_from_arrays, straight_route_profile
 from vcsumo.dynamics import TrainParams, brake_force_limit
@@ -203,6 +203,15 @@ class ReferenceNMPC:
             s_est = np.concatenate(([x0[0]], self._sim_out[0][:-1]))
         return self._sim_out[0].copy(), self._sim_out[1].copy()
 
+    def _speeds(self, z) -> np.ndarray:
+        """Speeds k = 1 … N for increments z with the gradient of the latest :meth:`simulate` (the speed floor)."""
+        zi = self._sim_in[1]
+        z_old = zi.copy()
+        zi[:] = z
+        self._sim_eval()
+        zi[:] = z_old
+        return self._sim_out[1].copy()
+
     def space_terms(self, lookup: RouteLookup | None, s_k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if lookup is None:
             return 0.0, 1.0
@@ -262,6 +271,8 @@ class ReferenceNMPC:
             converge = max_iterations is not None
             iters = max_iterations or cfg.sqp_max_iterations
             S, V = self.simulate(x0, z, lookup)  # a-priori estimate (eq. 14)
+            floor = speed_floor(self, x0, self._speeds)  # the speed limit is relaxed to this floor where it is above
+            relax = 0.0
             sol = None
             for it in range(1, iters + 1):
                 s_k = np.empty(N)
@@ -269,6 +280,8 @@ class ReferenceNMPC:
                 s_k[1:] = S[:-1]  # positions k = 0..N-1 for the dynamics data
                 grad, tf = self.space_terms(lookup, s_k)
                 vlim = self._vlim(lookup, v_limit_fn, S)
+                relax = max(float((floor - vlim).max()), 0.0)
+                vlim = np.maximum(vlim, floor)
                 term = self._term(terminal, x0, z, S, V)
                 z_new, S, V, slacks, cost, solved = self.sqp_iteration(x0, z, grad, tf, vlim, term, vref, w, srear, fw)
                 if not solved:
@@ -276,26 +289,26 @@ class ReferenceNMPC:
                 step_norm = float(np.max(np.abs(z_new - z)))
                 z = z_new
                 # check the nonlinear plan against every constraint
-                vlim_chk = vlim if it == 1 and not converge else np.minimum(vlim, self._vlim(lookup, v_limit_fn, S))
+                vlim_chk = vlim if it == 1 and not converge else np.maximum(np.minimum(vlim, self._vlim(lookup, v_limit_fn, S)), floor)
                 beta_N = float(self._term(terminal, x0, z, S, V)[0])
                 viol = self._violations(x0, z, S, V, vlim_chk, beta_N, srear, vl_N)
                 terminal_ok = viol["terminal_speed_mps"] <= cfg.tol_speed_mps or viol["terminal_overshoot_m"] <= cfg.tol_gap_m
                 ok = (viol["speed_mps"] <= cfg.tol_speed_mps and terminal_ok and viol["gap_m"] <= cfg.tol_gap_m
                       and viol["terminal_set_m"] <= cfg.tol_gap_m and viol["power_rel"] <= cfg.tol_power_rel and viol["force_n"] <= 1.0)
-                sol = (ok, z, S, V, slacks, viol, it, vlim, term, cost)
+                sol = (ok, z, S, V, slacks, viol, it, vlim, term, cost, relax)
                 if ok and (not converge or step_norm < 1e-7):
                     break
         except Exception as exc:  # never raise: brake
             return self._fallback(x0, t0_s, None, leader, t_start, f"error: {exc!r}")
         if sol is None:
             return self._fallback(x0, t0_s, lookup, leader, t_start, "the QP solver failed")
-        ok, z, S, V, slacks, viol, it, vlim, term, cost = sol
+        ok, z, S, V, slacks, viol, it, vlim, term, cost, relax = sol
         F, u = self.forces(x0[2], z)
         force_now = float(u[0]) if ok else float(-brake_force_limit(self.p, x0[1]))
         return MPCSolution(ok=ok, force_n=force_now, times_s=t0_s + dt * np.arange(N + 1), positions_m=np.concatenate(([x0[0]], S)),
                            speeds_mps=np.concatenate(([x0[1]], V)), forces_n=F, commands_n=u, z=z, slacks=slacks, violation=viol, iterations=it,
                            solve_time_s=time.perf_counter() - t_start, v_limit_mps=vlim, v_terminal_mps=math.sqrt(max(term[0], 0.0)),
-                           leader=leader, cost=cost)
+                           leader=leader, cost=cost, speed_relaxation_mps=relax)
 
     def _term(self, terminal, x0, z, S, V) -> np.ndarray:
         if terminal is None:

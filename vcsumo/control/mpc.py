@@ -15,7 +15,12 @@ step; v ≥ 0 as a smooth max).  Constraints, k = 0 … N−1 unless noted:
   against the lagged force;
 * speed limit 11e/12g, k = 1 … N: v_k ≤ v_lim(s̄_k), the train-length limit at the a-priori
   positions s̄ of eq. 14 (the previous plan shifted and simulated from the measured state; in
-  further SQP iterations the current iterate); 0 ≤ v_k holds by construction of the model;
+  further SQP iterations the current iterate); 0 ≤ v_k holds by construction of the model.  Where
+  no plan can keep below it — the train starts at or just above the limit with a force that the
+  lag and the jerk limit cannot bring down in time, e.g. at the limit on a steep descent, or after
+  a plant that applied the last command at once — the limit is raised to the speed floor of
+  :func:`~vcsumo.control.mpc_solver.speed_floor` (the force brought down at the jerk limit), only
+  at the steps where that floor is above it; ``MPCSolution.speed_relaxation_mps`` reports by how much;
 * terminal set 11i/12k: v_N ≤ v_DP(s_N), imposed as v_N² ≤ β(s_N) with β = v_DP² (nearly linear
   in s near a stop, and extended below zero past the end of the movement so that a train beyond
   it is outside the set).  v_DP is the boundary of the DP feasible set (eq. 10, Fig. 7) from
@@ -201,7 +206,8 @@ class _MPCBase:
             except Exception:
                 self._last = None
         info = {"solve_time_s": sol.solve_time_s, "sqp_iterations": sol.iterations, "violation": sol.violation,
-                "plan_commands_n": sol.commands_n, "infeasible_count": self.stats.infeasible}
+                "plan_commands_n": sol.commands_n, "infeasible_count": self.stats.infeasible,
+                "speed_relaxation_mps": sol.speed_relaxation_mps}
         if sol.leader is not None:
             info["predictor"] = sol.leader.strategy
         return Command(force_n=sol.force_n, mode=mode if sol.ok else "fallback", infeasible=not sol.ok, plan_times_s=sol.times_s,

@@ -47,10 +47,54 @@ class MPCSolution:
     """Terminal speed bound √β used in the last iteration (11i/12k)."""
     leader: LeaderPrediction | None = None
     cost: float = math.nan
+    speed_relaxation_mps: float = 0.0
+    """How far the speed constraint was raised above v_lim because no plan can keep below it from
+    the initial state (:func:`speed_floor`: the present force, the lag and the jerk limit), m/s."""
 
     def warm_start(self) -> np.ndarray:
         """Eq. 14b-c: the plan shifted by one step, last increment zero (holds the last force)."""
         return np.append(self.z[1:], 0.0)
+
+
+def speed_floor(ocp, x0, speeds) -> np.ndarray:
+    """The lowest speed the prediction model can reach at each step k = 1 … N from x0 = (s, v, F), m/s.
+
+    The applied force comes down as fast as the model allows: at the jerk limit (4c/12o), each
+    command u_k = F_k + ΔF_k/α within the service brake (4a) and the braking power (4b, at the
+    speeds of this same plan); the force then holds the bound.  Since v_{k+1} grows with v_k and
+    with F_{k+1}, no admissible plan is slower at any step, so a plan that starts at or just above
+    a speed limit with a force that the lag and the jerk limit cannot reverse in time exceeds the
+    limit by at least ``floor − v_lim`` over the first steps: :meth:`CondensedNMPC.solve` relaxes
+    the limit to max(v_lim, floor), only where the floor is above it.  ``ocp`` is a
+    :class:`CondensedNMPC` (or an object with its ``N``, ``z_scale``, ``z_max``, ``alpha``,
+    ``u_min``, ``p_br``); ``speeds(z)`` gives the model's speeds k = 1 … N for increments z (the
+    solve evaluates the model with the gradient along its a-priori plan: the floor's own positions
+    are a few metres behind, which the gradient averaged over the train barely notices).
+    """
+    N, zs, zmax, alpha = ocp.N, ocp.z_scale, ocp.z_max, ocp.alpha
+    u_lo = np.full(N, ocp.u_min)
+    z = np.empty(N)
+    V = None
+    for _ in range(2 if math.isfinite(ocp.p_br) else 1):
+        if V is not None:  # braking power 4b at the speeds of the first pass: −P_br/v_k ≤ u_k
+            v_prev = np.concatenate(((x0[1],), V[:-1]))
+            np.maximum(u_lo, -ocp.p_br / np.maximum(v_prev, 1e-3), out=u_lo)
+            if not np.any(u_lo > ocp.u_min):  # the power bound does not bind: the first pass is the floor
+                break
+        F = float(x0[2])
+        d0, c = F - ocp.u_min, zmax * zs
+        if V is None and d0 >= 0.0 and alpha < 1.0:  # closed form: down at the jerk limit, then the lag's approach to u_min
+            k = np.arange(N + 1)
+            k1 = int(math.floor((d0 - c / alpha) / c)) + 1 if alpha * d0 >= c else 0  # steps at the jerk limit
+            d = np.where(k <= k1, d0 - k * c, (d0 - k1 * c) * (1.0 - alpha) ** np.maximum(k - k1, 0))
+            np.divide(np.diff(d), zs, out=z)
+        else:
+            for k in range(N):
+                zk = min(max(-zmax, alpha * (u_lo[k] - F) / zs), zmax)
+                z[k] = zk
+                F += zk * zs
+        V = np.array(speeds(z), dtype=float)
+    return V
 
 
 class CondensedNMPC(CondensedQP):
@@ -113,6 +157,10 @@ class CondensedNMPC(CondensedQP):
             converge = max_iterations is not None
             iters = max_iterations or cfg.sqp_max_iterations
             S, V = self.simulate(x0, z, lookup)  # a-priori estimate (eq. 14); sets x0, z, grad, tf
+            S, V = S.copy(), V.copy()
+            floor = speed_floor(self, x0, self._speeds)  # the speeds no plan can stay below (lag, jerk)
+            self.z[:] = z
+            relax = 0.0
             F_N = f0 + self.z_scale * float(z.sum())
             varying = lookup is not None and not lookup.uniform
             sol = None
@@ -121,6 +169,8 @@ class CondensedNMPC(CondensedQP):
                     s_k = np.concatenate(((s0,), S[:-1]))
                     self.grad[:], self.tf[:] = lookup.gradient(s_k), lookup.tunnel_factor(s_k)
                 self._set_vlim(lookup, v_limit_fn, S, self.vlim)
+                relax = max(float((floor - self.vlim).max()), 0.0)
+                np.maximum(self.vlim, floor, out=self.vlim)  # relaxed only where unavoidable
                 beta, dbeta, c = self._term(terminal, F_N, S[-1], V[-1])
                 self.term[:] = (beta, dbeta, c)
                 if not self.sqp_iteration():
@@ -130,7 +180,7 @@ class CondensedNMPC(CondensedQP):
                 # check the nonlinear plan against every constraint
                 f_v, p_v, sp_v, g_v, ts_v = self.viol[:5].tolist()
                 if it > 1 or converge:
-                    vlim_chk = np.minimum(self.vlim, self._set_vlim(lookup, v_limit_fn, S, np.empty(N)))
+                    vlim_chk = np.maximum(np.minimum(self.vlim, self._set_vlim(lookup, v_limit_fn, S, np.empty(N))), floor)
                     sp_v = max(float((V - vlim_chk).max()), 0.0)
                 beta_N = self._term(terminal, F_N, S[-1], V[-1])[0]
                 v_N = float(V[-1])
@@ -145,7 +195,7 @@ class CondensedNMPC(CondensedQP):
                 ok = (sp_v <= cfg.tol_speed_mps and terminal_ok and g_v <= cfg.tol_gap_m
                       and ts_v <= cfg.tol_gap_m and p_v <= cfg.tol_power_rel and f_v <= 1.0)
                 plan = (self.z_new, self.pos, self.spd, self.F, self.u, self.dx[N:], self.vlim)
-                sol = (ok, viol, it, beta, self._cost[0])
+                sol = (ok, viol, it, beta, self._cost[0], relax)
                 if ok and (not converge or step_norm < 1e-7):
                     break
                 plan = tuple(a.copy() for a in plan)  # the buffers are rewritten by the next iteration
@@ -155,12 +205,19 @@ class CondensedNMPC(CondensedQP):
             return self._fallback(x0, t0_s, None, leader, t_start, f"error: {exc!r}")
         if sol is None:
             return self._fallback(x0, t0_s, lookup, leader, t_start, "the QP solver failed")
-        ok, viol, it, beta, cost = sol
+        ok, viol, it, beta, cost, relax = sol
         z, pos, spd, F, u, slacks, vlim = (a.copy() for a in plan)
         force_now = float(u[0]) if ok else float(-brake_force_limit(self.p, x0[1]))
         return MPCSolution(ok=ok, force_n=force_now, times_s=t0_s + self._k_dt, positions_m=pos, speeds_mps=spd, forces_n=F, commands_n=u, z=z,
                            slacks=slacks, violation=viol, iterations=it, solve_time_s=time.perf_counter() - t_start, v_limit_mps=vlim,
-                           v_terminal_mps=math.sqrt(max(beta, 0.0)), leader=leader, cost=float(cost))
+                           v_terminal_mps=math.sqrt(max(beta, 0.0)), leader=leader, cost=float(cost),
+                           speed_relaxation_mps=relax)
+
+    def _speeds(self, z: np.ndarray) -> np.ndarray:
+        """The model's speeds k = 1 … N for increments z from ``x0`` with the present ``grad`` and ``tf`` (overwrites ``z``)."""
+        self.z[:] = z
+        self._sim_eval()
+        return self._sim_out[1].copy()
 
     def _warm_z(self, z_warm) -> np.ndarray:
         """The warm start within the jerk bounds, padded with zeros to N, non-finite entries zero (a new array)."""
