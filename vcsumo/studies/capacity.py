@@ -17,13 +17,20 @@ For each direction, stopping pattern, regime and (VC) controller and convoy size
   ``headway_analytic_s`` is the regime's minimum headway from the separation model alone
   (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway` on the leader's unhindered,
   supervised profile: FBS blocks with their release and fixed times, MB the guaranteed braking
-  distance + margin behind the rear, VC a convoy whose followers run the coupled gap
-  ``vc_gap(v)`` behind each other and the next convoy at moving-block distance from its last
-  train) — it is independent of the simulation;
+  distance + margin behind the rear, VC a convoy whose followers run at the spacing their stack
+  keeps where each of them is on the route (:func:`vcsumo.studies.capacity_route.convoy_spacing`:
+  the relative-braking rule over the grades ahead) and the next convoy at moving-block distance
+  from its last train) — it is independent of the simulation;
+* convoy followers start at that same route spacing where they start
+  (:func:`vcsumo.studies.capacity_route.initial_convoy_gaps`): started closer, the separation
+  guard brakes them at their release;
 * a convoy is **formed** when its followers run within 10 % + 10 m of the spacing their stacks
-  keep at the release speed (``intra_convoy_gap_m`` — the median simulated gap at the release
-  speed ±3 % — beside ``coupled_spacing_m``, and the analytic headway's ``coupled_gap_model_m``;
-  ``convoy_formed``).  A follower that enters the line at a
+  keep: ``intra_convoy_gap_m`` — the median simulated gap at the release speed ±3 % — against
+  ``coupled_spacing_m``, the median over the same records of the spacing at each follower's speed
+  and position on its route (the spacing the controller holds and the driver's formation account
+  uses; :func:`cruise_records`); ``convoy_formed``.  Beside them ``coupled_gap_model_m``: the
+  analytic headway's spacing of the first follower at the release point and speed (on the route),
+  and ``coupled_gap_level_m``: the same on level track (a paper check), m.  A follower that enters the line at a
   lower permitted speed than its leader (a speed restriction before the release point) keeps the
   time gap of that restriction at line speed: equal trains at the same line speed cannot close
   it, and the simulated headway is then longer than the analytic one, which assumes a formed
@@ -122,9 +129,13 @@ def cruise_records(records: pd.DataFrame, setup: RouteSetup, followers: dict[str
     full = setup.full
     spacing = []
     for tid, km, v in zip(cruise.train, cruise.km, cruise.speed_mps):
-        t = followers[tid]
-        off = full.length_m - t.profile.length_m  # the follower's route is the full track's tail
-        spacing.append(float(spacing_m(tid, float(v), full.s_of("main", float(km)) - off)))
+        off = full.length_m - followers[tid].profile.length_m  # the follower's route is the full track's tail
+        try:
+            s_own = full.s_of("main", float(km)) - off
+        except KeyError:  # not on the main track (cannot happen on the study's routes): no spacing
+            spacing.append(math.nan)
+            continue
+        spacing.append(float(spacing_m(tid, float(v), s_own)))
     return cruise.assign(spacing_m=spacing)
 
 
