@@ -106,7 +106,6 @@ def released(request, tmp_path_factory):
 def test_the_route_spacing_at_release_is_wider_than_on_level_track(released):
     """The case is one where level track is wrong: the stack keeps more on the descent."""
     r = released
-    follower = r["units"][0][1]
     assert r["spacing"](r["setup"].v0, r["setup"].release_s - r["stock"].length_m - r["gaps"][0]) > r["spacing"](r["setup"].v0) + 20.0
 
 
@@ -155,6 +154,7 @@ def test_the_analytic_convoy_starts_at_the_route_spacing(released):
     level = analytic_headway(r["net"], setup, run, stock, case, model, DT, check_position_m(setup), r["spacing"])
     assert on_route.coupled_gap_level_m == pytest.approx(r["spacing"](setup.v0))
     assert on_route.coupled_gap_m == pytest.approx(r["gaps"][0], abs=1.0)
-    # a longer convoy on the descent: its rear clears later, never earlier
-    assert on_route.headway_s >= level.headway_s - 1e-6
-    assert math.isfinite(on_route.headway_s)
+    # the convoy is longer on the descent (its follower keeps more there): its rear clears later
+    # (measured: EMU 75.8 vs 69.5 s, freight 137.2 vs 128.4 s)
+    gained = (on_route.coupled_gap_m - on_route.coupled_gap_level_m) / setup.v0
+    assert math.isfinite(on_route.headway_s) and on_route.headway_s > level.headway_s + 0.5 * gained
