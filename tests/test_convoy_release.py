@@ -93,7 +93,7 @@ def released(request, tmp_path_factory):
     model = SeparationModel(assumptions)
     setup = route_setup(line, net, stock, "up", DT, model)
     case = Case("up", "vc", "cbc", 2, "non-stop")
-    spacing = convoy_spacing("cbc", stock, DT, assumptions, setup.full)
+    spacing = convoy_spacing("cbc", stock, DT, assumptions, setup.full, CHANNEL.age_budget_s())  # the message age the loop's stack budgets
     gaps = initial_convoy_gaps(spacing, model, stock, setup, 2)
     units = unit_trains(net.topology, setup, stock, case, 1, 0.0, gaps)
     driver = VCDriver(units, "cbc", DT, 42, CHANNEL, assumptions=assumptions, record_every_s=DT)

@@ -163,7 +163,11 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     run = leader_run(setup, stock, case, dt, model)
     s_check = check_position_m(setup)
     # the spacing the followers' stacks keep on this route (the stack the loop builds, on the full track)
-    spacing_of = convoy_spacing(case.controller, stock, dt, assumptions, setup.full) if case.regime == "vc" and case.convoy_size > 1 else None
+    from vcsumo.sim.vc_driver import load_channel
+
+    channel = load_channel(None)  # the runs' channel: the stacks' spacing budgets its message age
+    spacing_of = (convoy_spacing(case.controller, stock, dt, assumptions, setup.full, channel.age_budget_s())
+                  if case.regime == "vc" and case.convoy_size > 1 else None)
     init_gap = initial_convoy_gaps(spacing_of, model, stock, setup, case.convoy_size) if case.convoy_size > 1 else []
     theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check, spacing_of, on_route=True)
     guess = theory.headway_s
@@ -177,9 +181,9 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         trains = [t for u in units for t in u]
         driver = None
         if case.regime == "vc":
-            from vcsumo.sim.vc_driver import VCDriver, load_channel
+            from vcsumo.sim.vc_driver import VCDriver
 
-            driver = VCDriver(units, case.controller, dt, seed, load_channel(None), assumptions=assumptions)
+            driver = VCDriver(units, case.controller, dt, seed, channel, assumptions=assumptions)
         probes[0] += 1
         sim = simulate(Scenario(line, net, trains, case.regime, step_length_s=dt, measuring_points=mps, record_period_s=3600.0,
                                 full_outputs=False, trace_speeds=True, driver=driver, seed=seed, assumptions=assumptions), out / "probes" / f"h{h:08.3f}")

@@ -140,7 +140,8 @@ def check_position_m(setup: RouteSetup) -> float:
     return setup.full.length_m - 100.0
 
 
-def convoy_spacing(controller: str, stock: RollingStock, step_s: float, assumptions, profile: RouteProfile | None = None) -> Callable[..., float]:
+def convoy_spacing(controller: str, stock: RollingStock, step_s: float, assumptions, profile: RouteProfile | None = None,
+                   message_age_s: float | None = None) -> Callable[..., float]:
     """The front-to-rear gap a follower of ``controller``'s stack keeps behind a train of its own type
     at a common speed v, m: ``spacing(v)`` on level track, ``spacing(v, s)`` with the follower's
     front at route position s of ``profile`` (on the gradients there: the relative-braking rule
@@ -148,10 +149,13 @@ def convoy_spacing(controller: str, stock: RollingStock, step_s: float, assumpti
     (:func:`vcsumo.control.registry.build_follower_stack` on the route), read as
     :meth:`vcsumo.sim.vc_driver.VCDriver.coupled_spacing_m` reads it (the stack's coupled gap, at
     least its minimum safe gap) — a formula of the separation model, the guard's brake build-up and
-    the controller's parameters, not a measurement."""
+    the controller's parameters, not a measurement.  ``message_age_s``: the message age the stack's
+    spacing budgets, as the loop gives it (:meth:`vcsumo.control.channel.ChannelConfig.age_budget_s`
+    of the run's channel; None: the assumption set's bound)."""
     from vcsumo.control.registry import StackContext, build_follower_stack
 
-    stack = build_follower_stack(controller, StackContext(ego=stock, predecessor=stock, step_s=step_s, profile=profile, assumptions=assumptions))
+    stack = build_follower_stack(controller, StackContext(ego=stock, predecessor=stock, step_s=step_s, profile=profile, assumptions=assumptions,
+                                                          message_age_s=message_age_s))
 
     def spacing(v: float, position_m: float | None = None) -> float:
         return max(stack.coupled_gap_m(v, position_m if profile is not None else None), stack.d_min_m)
