@@ -100,7 +100,7 @@ def test_convoy_members_start_outside_their_safe_separation_on_a_grade(tmp_path)
     safe separation (the start gap was the level-track one): every probe had 2 gap violations and
     the case was reported as 'no sustainable headway found (trains hindered at every interval)'."""
     from vcsumo.signalling.separation import RelativeBraking
-    from vcsumo.studies.capacity_route import initial_convoy_gap
+    from vcsumo.studies.capacity_route import convoy_spacing, initial_convoy_gaps
 
     # the climb from km 3.0; the units are released on it at km 5.0, the follower 0.7 km + the gap behind
     text = LINE.replace("GRADE", "25.0").replace("{from_km: 5.0, to_km: 6.5", "{from_km: 3.0, to_km: 7.5") + "headway: {measuring_points_km: [6.0], release_km: {up: 5.0, down: 1.0}}\n"
@@ -109,7 +109,7 @@ def test_convoy_members_start_outside_their_safe_separation_on_a_grade(tmp_path)
     net = build_network(line)
     model = SeparationModel(load_assumptions())
     setup = route_setup(line, net, stock, "up", 0.2, model)
-    gap = initial_convoy_gap(model, stock, setup.v0, setup, 2)
+    gap, = initial_convoy_gaps(convoy_spacing("cbc", stock, 0.2, load_assumptions(), setup.full), model, stock, setup, 2)
     s_l = setup.release_s
     s_f = s_l - stock.length_m - gap
     # the health monitor's rule for a VC follower, where the two start

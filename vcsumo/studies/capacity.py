@@ -17,13 +17,20 @@ For each direction, stopping pattern, regime and (VC) controller and convoy size
   ``headway_analytic_s`` is the regime's minimum headway from the separation model alone
   (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway` on the leader's unhindered,
   supervised profile: FBS blocks with their release and fixed times, MB the guaranteed braking
-  distance + margin behind the rear, VC a convoy whose followers run the coupled gap
-  ``vc_gap(v)`` behind each other and the next convoy at moving-block distance from its last
-  train) — it is independent of the simulation;
+  distance + margin behind the rear, VC a convoy whose followers run at the spacing their stack
+  keeps where each of them is on the route (:func:`vcsumo.studies.capacity_route.convoy_spacing`:
+  the relative-braking rule over the grades ahead) and the next convoy at moving-block distance
+  from its last train) — it is independent of the simulation;
+* convoy followers start at that same route spacing where they start
+  (:func:`vcsumo.studies.capacity_route.initial_convoy_gaps`): started closer, the separation
+  guard brakes them at their release;
 * a convoy is **formed** when its followers run within 10 % + 10 m of the spacing their stacks
-  keep at the release speed (``intra_convoy_gap_m`` — the median simulated gap at the release
-  speed ±3 % — beside ``coupled_spacing_m``, and the analytic headway's ``coupled_gap_model_m``;
-  ``convoy_formed``).  A follower that enters the line at a
+  keep: ``intra_convoy_gap_m`` — the median simulated gap at the release speed ±3 % — against
+  ``coupled_spacing_m``, the median over the same records of the spacing at each follower's speed
+  and position on its route (the spacing the controller holds and the driver's formation account
+  uses; :func:`cruise_records`); ``convoy_formed``.  Beside them ``coupled_gap_model_m``: the
+  analytic headway's spacing of the first follower at the release point and speed (on the route),
+  and ``coupled_gap_level_m``: the same on level track (a paper check), m.  A follower that enters the line at a
   lower permitted speed than its leader (a speed restriction before the release point) keeps the
   time gap of that restriction at line speed: equal trains at the same line speed cannot close
   it, and the simulated headway is then longer than the analytic one, which assumes a formed
@@ -62,7 +69,8 @@ from vcsumo.rolling_stock import RollingStock
 from vcsumo.results import ResultsFolder, file_digest, write_meta
 from vcsumo.sim.convoy_formation import within_spacing
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
-from vcsumo.studies.capacity_route import Case, RouteSetup, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gap, leader_run, route_setup, unit_trains
+from vcsumo.studies.capacity_route import (Case, RouteSetup, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gaps, leader_run, route_setup,
+                                           unit_trains)
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.studies.time_distance import TIME_DISTANCE_COLUMNS, TIME_DISTANCE_FILE, time_distance_table
 from vcsumo.timetable import PlannedTrain
@@ -70,7 +78,7 @@ from vcsumo.timetable import PlannedTrain
 PATTERNS = ("non-stop", "all-stops")
 CAPACITY_COLUMNS = [
     "line", "direction", "regime", "controller", "convoy_size", "stopping_pattern", "critical_section_km", "headway_sim_s",
-    "headway_analytic_s", "intra_convoy_gap_m", "coupled_gap_model_m", "coupled_spacing_m", "convoy_formed", "release_speed_kmh", "capacity_trains_per_h", "gain_vs_fbs",
+    "headway_analytic_s", "intra_convoy_gap_m", "coupled_gap_model_m", "coupled_gap_level_m", "coupled_spacing_m", "convoy_formed", "release_speed_kmh", "capacity_trains_per_h", "gain_vs_fbs",
     "healthy", "min_gap_m", "min_margin_m", "gap_violations", "below_separation_time_s", "collisions", "max_impact_kmh", "stops_skipped",
     "overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops", "unhealthy_probes", "assumptions",
     "train", "release_interval_s", "deviation_pct", "block_length_m", "fixed_time_s", "emergency_brakes", "guard_interventions", "simulations",
@@ -105,6 +113,32 @@ def convoy_formed(gap_m: float, spacing_m: float | None) -> bool | float:
     return bool(within_spacing(gap_m, spacing_m))
 
 
+CRUISE_REL = 0.03
+"""A follower record counts towards the convoy's gap at the release speed within ±3 % of it."""
+
+
+def cruise_records(records: pd.DataFrame, setup: RouteSetup, followers: dict[str, PlannedTrain], spacing_m: Callable[..., float]) -> pd.DataFrame:
+    """The followers' records at the release speed (±:data:`CRUISE_REL`), each with ``spacing_m``:
+    the spacing its stack keeps at its speed where it is on its route
+    (``spacing_m(train_id, v, s)``, :meth:`vcsumo.sim.vc_driver.VCDriver.coupled_spacing_m`,
+    the spacing the driver's formation account and the controller use), m."""
+    if not len(records):
+        return records.assign(spacing_m=pd.Series(dtype=float))
+    cruise = records[(records.speed_mps - setup.v0).abs() <= CRUISE_REL * max(setup.v0, 1.0)]
+    cruise = cruise[cruise.train.isin(list(followers))]
+    full = setup.full
+    spacing = []
+    for tid, km, v in zip(cruise.train, cruise.km, cruise.speed_mps):
+        off = full.length_m - followers[tid].profile.length_m  # the follower's route is the full track's tail
+        try:
+            s_own = full.s_of("main", float(km)) - off
+        except KeyError:  # not on the main track (cannot happen on the study's routes): no spacing
+            spacing.append(math.nan)
+            continue
+        spacing.append(float(spacing_m(tid, float(v), s_own)))
+    return cruise.assign(spacing_m=spacing)
+
+
 @dataclass
 class CaseResult:
     row: dict
@@ -128,9 +162,14 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
     dt = vc_step_s if case.regime == "vc" else step_s
     run = leader_run(setup, stock, case, dt, model)
     s_check = check_position_m(setup)
-    init_gap = initial_convoy_gap(model, stock, setup.v0, setup, case.convoy_size) if case.convoy_size > 1 else 0.0
-    spacing_of = convoy_spacing(case.controller, stock, dt, assumptions) if case.regime == "vc" and case.convoy_size > 1 else None
-    theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check, spacing_of)
+    # the spacing the followers' stacks keep on this route (the stack the loop builds, on the full track)
+    from vcsumo.sim.vc_driver import load_channel
+
+    channel = load_channel(None)  # the runs' channel: the stacks' spacing budgets its message age
+    spacing_of = (convoy_spacing(case.controller, stock, dt, assumptions, setup.full, channel.age_budget_s())
+                  if case.regime == "vc" and case.convoy_size > 1 else None)
+    init_gap = initial_convoy_gaps(spacing_of, model, stock, setup, case.convoy_size) if case.convoy_size > 1 else []
+    theory = analytic_headway(net, setup, run, stock, case, model, dt, s_check, spacing_of, on_route=True)
     guess = theory.headway_s
     probes = [0]
     unhealthy = [0]
@@ -142,9 +181,9 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         trains = [t for u in units for t in u]
         driver = None
         if case.regime == "vc":
-            from vcsumo.sim.vc_driver import VCDriver, load_channel
+            from vcsumo.sim.vc_driver import VCDriver
 
-            driver = VCDriver(units, case.controller, dt, seed, load_channel(None), assumptions=assumptions)
+            driver = VCDriver(units, case.controller, dt, seed, channel, assumptions=assumptions)
         probes[0] += 1
         sim = simulate(Scenario(line, net, trains, case.regime, step_length_s=dt, measuring_points=mps, record_period_s=3600.0,
                                 full_outputs=False, trace_speeds=True, driver=driver, seed=seed, assumptions=assumptions), out / "probes" / f"h{h:08.3f}")
@@ -171,9 +210,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
                                    min_speed_mps=SPEED_TOL_MIN_MPS)
         if driver is not None:
             pr.vc = driver.summary()  # type: ignore[attr-defined]
-            # the spacing the followers' stacks keep at the release speed (the widest of the convoy)
-            pr.spacing_m = max(driver.coupled_spacing_m(t.id, setup.v0) for u in units for t in u[1:])  # type: ignore[attr-defined]
-            pr.vc_records = pd.DataFrame(driver.records)  # type: ignore[attr-defined]
+            pr.vc_records = cruise_records(pd.DataFrame(driver.records), setup, {t.id: t for u in units for t in u[1:]}, driver.coupled_spacing_m)  # type: ignore[attr-defined]
         return pr
 
     found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=2.0, resolution_s=resolution_s, bracket=SEARCH_BRACKET,
@@ -183,12 +220,9 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         raise VcsumoError(f"no sustainable headway found for {case} (trains hindered at every interval tried)")
     units = pr.units  # type: ignore[attr-defined]
     # coupled gap inside convoys at the release speed (±3 %), beside the separation model's gap there
-    gap = math.nan
+    gap = spacing = math.nan
     if case.convoy_size > 1 and hasattr(pr, "vc_records") and len(pr.vc_records):
-        rec = pr.vc_records
-        cruise = rec[(rec.speed_mps - setup.v0).abs() <= 0.03 * max(setup.v0, 1.0)]
-        gap = float(cruise.gap_m.median()) if len(cruise) else math.nan
-    spacing = float(getattr(pr, "spacing_m", math.nan))
+        gap, spacing = float(pr.vc_records.gap_m.median()), float(pr.vc_records.spacing_m.median())
     h_an, crit, blocks = theory.headway_s, theory.critical_m, theory.blocks
     # simulated headway: leaders passing the critical section in the run at the minimum interval
     tr0 = pr.sim.speed_traces  # type: ignore[attr-defined]
@@ -211,6 +245,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         "stopping_pattern": case.pattern, "critical_section_km": round(setup.full.km_at(crit)[1], 3), "headway_sim_s": round(h_sim, 2),
         "headway_analytic_s": round(h_an, 2), "intra_convoy_gap_m": round(gap, 1) if not math.isnan(gap) else math.nan,
         "coupled_gap_model_m": round(theory.coupled_gap_m, 1) if theory.coupled_gap_m is not None else math.nan,
+        "coupled_gap_level_m": round(theory.coupled_gap_level_m, 1) if theory.coupled_gap_level_m is not None else math.nan,
         "coupled_spacing_m": round(spacing, 1), "convoy_formed": convoy_formed(gap, spacing) if case.convoy_size > 1 else math.nan,
         "release_speed_kmh": round(3.6 * setup.v0, 1),
         "capacity_trains_per_h": round(3600.0 * case.convoy_size / h_sim, 2), "gain_vs_fbs": math.nan,

@@ -102,14 +102,19 @@ def train_at(topo, setup: RouteSetup, stock: RollingStock, tid: str, s_depart: f
     )
 
 
-def unit_trains(topo, setup: RouteSetup, stock: RollingStock, case: Case, n_units: int, h: float, initial_gap_m: float) -> list[list[PlannedTrain]]:
-    """``n_units`` units released ``h`` apart; convoy members start ``initial_gap_m`` behind each other."""
+def unit_trains(topo, setup: RouteSetup, stock: RollingStock, case: Case, n_units: int, h: float, initial_gap_m: float | list[float]) -> list[list[PlannedTrain]]:
+    """``n_units`` units released ``h`` apart; convoy member k starts ``initial_gap_m`` (one gap for
+    all, or member k's gap behind member k − 1 at index k − 1: :func:`initial_convoy_gaps`) behind
+    the train ahead."""
+    gaps = list(initial_gap_m) if isinstance(initial_gap_m, (list, tuple)) else [float(initial_gap_m)] * max(case.convoy_size - 1, 0)
     stops = setup.stops_full if case.pattern == "all-stops" else []
     units = []
     for j in range(n_units):
         members = []
+        s_dep = setup.release_s
         for k in range(case.convoy_size):
-            s_dep = setup.release_s - k * (stock.length_m + initial_gap_m)
+            if k:
+                s_dep -= stock.length_m + (gaps[k - 1] if k - 1 < len(gaps) else gaps[-1])
             if s_dep < stock.length_m + 1.0:
                 raise VcsumoError(f"convoy of {case.convoy_size} does not fit before the release point {setup.rel_km} km; move headway.release_km")
             members.append(train_at(topo, setup, stock, f"{case.direction}_u{j}_m{k}", s_dep, stops, j * h, f"unit{j}"))
@@ -135,23 +140,79 @@ def check_position_m(setup: RouteSetup) -> float:
     return setup.full.length_m - 100.0
 
 
-def convoy_spacing(controller: str, stock: RollingStock, step_s: float, assumptions) -> Callable[[float], float]:
+def convoy_spacing(controller: str, stock: RollingStock, step_s: float, assumptions, profile: RouteProfile | None = None,
+                   message_age_s: float | None = None) -> Callable[..., float]:
     """The front-to-rear gap a follower of ``controller``'s stack keeps behind a train of its own type
-    at a common speed v on level track, m (as :meth:`vcsumo.sim.vc_driver.VCDriver.coupled_spacing_m`:
-    the stack's coupled gap, at least its minimum safe gap) — a formula of the separation model, the
-    guard's brake build-up and the controller's parameters, not a measurement."""
+    at a common speed v, m: ``spacing(v)`` on level track, ``spacing(v, s)`` with the follower's
+    front at route position s of ``profile`` (on the gradients there: the relative-braking rule
+    over the grades ahead within the braking distance).  It is the stack the SUMO loop builds
+    (:func:`vcsumo.control.registry.build_follower_stack` on the route), read as
+    :meth:`vcsumo.sim.vc_driver.VCDriver.coupled_spacing_m` reads it (the stack's coupled gap, at
+    least its minimum safe gap) — a formula of the separation model, the guard's brake build-up and
+    the controller's parameters, not a measurement.  ``message_age_s``: the message age the stack's
+    spacing budgets, as the loop gives it (:meth:`vcsumo.control.channel.ChannelConfig.age_budget_s`
+    of the run's channel; None: the assumption set's bound)."""
     from vcsumo.control.registry import StackContext, build_follower_stack
 
-    stack = build_follower_stack(controller, StackContext(ego=stock, predecessor=stock, step_s=step_s, assumptions=assumptions))
-    return lambda v: max(stack.coupled_gap_m(v), stack.d_min_m)
+    stack = build_follower_stack(controller, StackContext(ego=stock, predecessor=stock, step_s=step_s, profile=profile, assumptions=assumptions,
+                                                          message_age_s=message_age_s))
+
+    def spacing(v: float, position_m: float | None = None) -> float:
+        return max(stack.coupled_gap_m(v, position_m if profile is not None else None), stack.d_min_m)
+
+    return spacing
+
+
+START_ITERATIONS = 8
+"""Fixed-point steps for a start gap that depends on where the follower starts (the gradients there)."""
+
+
+def initial_convoy_gaps(spacing: Callable[..., float] | None, model: SeparationModel, stock: RollingStock, setup: RouteSetup, members: int) -> list[float]:
+    """Starting gap of each convoy follower behind the train ahead (member k = 1 … ``members`` − 1), m.
+
+    Each follower starts at the spacing its stack keeps where it starts (``spacing(v, s)`` of
+    :func:`convoy_spacing` on the full track, at its release speed and its front's route position:
+    on a grade the relative-braking rule over the grades ahead, which is what the controller holds
+    and the separation guard enforces 10 m inside — started closer, the follower brakes at its
+    release), and never inside the health monitor's relative-braking rule with the two trains' own
+    release speeds (+ 20 m; it decides where the train ahead is slower).  The follower's position
+    depends on its gap: solved by a fixed point (the largest of the last two steps if it has not
+    settled to 0.1 m)."""
+    rule = RelativeBraking(model, stock, stock, setup.full)
+    dead = model.dead_time_s + model.assumptions.t2t_delay_bound_s  # as vc_gap: the leader's newest message at its oldest
+    gaps: list[float] = []
+    s_l = setup.release_s
+    for _ in range(1, members):
+        v_l = setup.depart_speed(s_l)
+
+        def need(gap: float) -> float:
+            s_f = s_l - stock.length_m - gap
+            v_f = setup.depart_speed(s_f)
+            held = spacing(v_f, s_f) if spacing is not None else model.vc_gap(stock, stock, v_f) + 20.0
+            return max(held, rule.required_gap(s_f, v_f, s_l, v_l, dead) + 20.0)
+
+        gap = prev = need(model.vc_gap(stock, stock, v_l) + 20.0)
+        for _ in range(START_ITERATIONS):
+            prev, gap = gap, need(gap)
+            if abs(gap - prev) < 0.1:
+                break
+        gap = max(gap, prev)
+        gaps.append(gap)
+        s_l = s_l - stock.length_m - gap
+        if s_l < stock.length_m:
+            break
+    return gaps
 
 
 def analytic_headway(net: BuiltNetwork, setup: RouteSetup, run: pd.DataFrame, stock: RollingStock, case: Case, model: SeparationModel, step_s: float,
-                     s_check: float, coupled_gap: Callable[[float], float] | None = None):
+                     s_check: float, coupled_gap: Callable[..., float] | None = None, on_route: bool = False):
     """The regime's minimum headway between two units from the separation model alone
     (:meth:`vcsumo.signalling.regimes.base.Regime.analytic_headway`; VC convoys at ``coupled_gap``,
-    e.g. :func:`convoy_spacing`)."""
-    inp = HeadwayInputs(model, stock, setup.full, run, setup.full.signal_positions(net.topology), step_s, s_check, coupled_gap=coupled_gap)
+    e.g. :func:`convoy_spacing`: with ``on_route`` its ``spacing(v, s)`` on the full track, each
+    follower at the spacing where it is as the convoy runs; else ``spacing(v)``, level track)."""
+    route_gap = coupled_gap if on_route else None
+    inp = HeadwayInputs(model, stock, setup.full, run, setup.full.signal_positions(net.topology), step_s, s_check, coupled_gap=coupled_gap,
+                        coupled_gap_at=route_gap)
     return REGIMES[case.regime].analytic_headway(inp, case.convoy_size)
 
 

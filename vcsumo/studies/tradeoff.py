@@ -55,6 +55,7 @@ from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.network import BuiltNetwork
 from vcsumo.studies.capacity_route import Case, analytic_headway, check_position_m, convoy_spacing, leader_run, route_setup
+from vcsumo.sim.convoy_plan import load_channel
 
 SWEPT = ("t2t_delay_bound_s", "braking_uncertainty", "position_error_m")
 """Assumptions the study sweeps (fields of :class:`~vcsumo.signalling.assumptions.AssumptionSet`)."""
@@ -191,8 +192,10 @@ def capacities(tl: TradeoffLine, aset: AssumptionSet, units: list[tuple[str, int
             case = Case(tl.direction, regime, None, n, tl.pattern)
             if dt not in runs:
                 runs[dt] = leader_run(setup, tl.stock, case, dt, model)
-            spacing = convoy_spacing(tl.vc_controller, tl.stock, dt, aset) if regime == "vc" and n > 1 and tl.vc_controller else None
-            th = analytic_headway(tl.net, setup, runs[dt], tl.stock, case, model, dt, s_check, spacing)
+            # the capacity study's spacing: on the route, with the message age of its runs' channel
+            spacing = (convoy_spacing(tl.vc_controller, tl.stock, dt, aset, setup.full, load_channel(None).age_budget_s())
+                       if regime == "vc" and n > 1 and tl.vc_controller else None)
+            th = analytic_headway(tl.net, setup, runs[dt], tl.stock, case, model, dt, s_check, spacing, on_route=True)
             rows.append({"regime": regime, "convoy_size": n, "headway_s": round(th.headway_s, 3),
                          "capacity_trains_per_h": round(3600.0 * n / th.headway_s, 3), "critical_km": round(setup.full.km_at(th.critical_m)[1], 3),
                          "coupled_gap_m": round(th.coupled_gap_m, 1) if th.coupled_gap_m is not None else math.nan,

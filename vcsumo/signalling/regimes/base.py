@@ -64,6 +64,11 @@ class HeadwayInputs:
     their stack certifies (e.g. :meth:`vcsumo.control.stack.FollowerStack.coupled_gap_m`: the
     model's relative braking gap with the guard's brake build-up and the controller's buffer);
     None: the separation model's own coupled gap ``vc_gap(v)``."""
+    coupled_gap_at: Callable[[float, float], float] | None = None
+    """VC on a route: ``(v, s) ->`` that spacing with the follower's front at route position s of
+    ``profile`` (the relative-braking rule over the grades ahead), m; when given, every follower of
+    the convoy runs at the spacing where it is (``coupled_gap`` is then only the level-track
+    figure)."""
 
     @property
     def end_m(self) -> float:
@@ -83,7 +88,10 @@ class AnalyticHeadway:
     blocks: pd.DataFrame | None = None
     """FBS: every block's blocking time (for the blocking-time stairs)."""
     coupled_gap_m: float | None = None
-    """VC: the coupled front-to-rear gap at the release speed, m."""
+    """VC: the coupled front-to-rear gap at the release speed, m — on the route where the first
+    follower is at the release (with ``HeadwayInputs.coupled_gap_at``), else on level track."""
+    coupled_gap_level_m: float | None = None
+    """VC: the same spacing on level track at the release speed, m (a paper check)."""
 
 
 class Regime:
