@@ -10,6 +10,7 @@ import pytest
 from vcsumo.cli.main import main
 
 from .conftest import write
+from .test_network_unseen import FREIGHT  # a 450 m, 1,000 t freight train (0.35 / 0.5 m/s²)
 
 pytestmark = pytest.mark.sumo
 
@@ -92,23 +93,6 @@ def test_a_follower_waiting_in_a_platform_too_short_for_its_convoy_serves_its_st
     assert {("D1", "STP"), ("D2", "STP"), ("D1", "MID"), ("D2", "MID")} <= served
     assert (ev.dwell_s >= 1.0).all()
 
-FREIGHT = """
-name: freight100
-title: freight train (unseen test) [A]
-length_m: 450.0
-mass_kg: 1000000.0
-rotating_mass_factor: 1.08
-max_speed_kmh: 100.0
-max_traction_n: 300000.0
-max_power_w: 4200000.0
-davis_a_n: 14000.0
-davis_b_n_per_mps: 100.0
-davis_c_n_per_mps2: 8.0
-service_brake_decel_mps2: 0.35
-emergency_brake_decel_mps2: 0.5
-max_jerk_mps3: 0.5
-traction_lag_s: 1.0
-"""
 # a heterogeneous convoy down the mountain: a freight train leads, a commuter EMU (which out-brakes
 # it on level track) follows; its relative-braking rule is the mid-braking form
 HETERO = """
