@@ -29,6 +29,7 @@ from vcsumo.studies.capacity import cruise_records
 from vcsumo.studies.capacity_route import Case, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gaps, leader_run, route_setup, unit_trains
 
 from .conftest import write
+from .test_unseen2_capacity import FREIGHT  # a 700 m, 2,000 t freight train (0.5 / 0.7 m/s²)
 
 pytestmark = pytest.mark.sumo
 
@@ -45,22 +46,6 @@ gradients:
   - {from_km: FROM, to_km: 8.0, permille: GRADE}
 signalling: {block_length_m: 1500}
 headway: {measuring_points_km: [6.0], release_km: {up: RELEASE, down: 1.0}}
-"""
-FREIGHT = """
-name: freight
-length_m: 700.0
-mass_kg: 2000000.0
-rotating_mass_factor: 1.06
-max_speed_kmh: 80.0
-max_traction_n: 400000.0
-max_power_w: 5600000.0
-davis_a_n: 20000.0
-davis_b_n_per_mps: 150.0
-davis_c_n_per_mps2: 10.0
-service_brake_decel_mps2: 0.5
-emergency_brake_decel_mps2: 0.7
-max_jerk_mps3: 0.3
-traction_lag_s: 1.5
 """
 DT = 0.2
 CHANNEL = load_channel(None).model_copy(update={"loss_probability": 0.0})
