@@ -135,7 +135,10 @@ class MergeLocking:
                         changed = True
         self.s_m: dict[str, float] = {}
         """Latest route position of every running train's front, m."""
-        self.single = SingleTrackLocking(model, topo, trains, braking, self.behind_rear, lock_time_s)
+        self.version = 0
+        """Counts the changes of the orders at the junctions and on single track (a bound built on them,
+        :meth:`authority_floor`, holds while it is unchanged)."""
+        self.single = SingleTrackLocking(model, topo, trains, braking, self.behind_rear, lock_time_s, on_change=self._changed)
         """One direction at a time on every stretch of single track (its end of authority and SUMO
         constraints come with this class's)."""
 
@@ -182,12 +185,16 @@ class MergeLocking:
                     keep.append(tid)  # not yet departed: keeps its place
                 else:
                     j.cleared.add(tid)
+            if len(keep) != len(j.order):
+                self.version += 1
             j.order = keep
         return new
 
     def arrived(self, gone: list[str]) -> None:
         """Trains that left the network."""
         self.gone.update(gone)
+        if gone:
+            self.version += 1
         self.single.arrived(gone)
         for tid in gone:
             for ap in self.approaches.get(tid, ()):
@@ -198,6 +205,7 @@ class MergeLocking:
         # in front of the trains that must pass after it, else last
         k = next((i for i, x in enumerate(j.order) if tid in j.first.get(x, ())), len(j.order))
         j.order.insert(k, tid)
+        self.version += 1
         self._constrain(j, tid, new)
 
     def ahead(self, node: str, tid: str) -> list[str]:
@@ -261,6 +269,44 @@ class MergeLocking:
         if k < 0 or sig[k] < s_m - 2 * a.position_error_m - 1.0:  # no signal between: on sight behind it
             return clear - s_m - a.position_error_m
         return sig[k] - s_m - a.position_error_m
+
+    def authority_floor(self, tid: str, s_m: float) -> float:
+        """A route position p such that :meth:`authority_distance` of the train (not coupled) is at
+        least p − x for every front position x ≥ ``s_m`` while the orders at the junctions and on
+        single track stay as they are (:attr:`version` unchanged), m; inf: nothing ahead holds the
+        train.  A bound for skipping the supervision where nothing here can be within reach: passing
+        a junction or a stretch only removes it from those ahead."""
+        best = math.inf
+        single = self.single
+        if single.active:
+            for run in single.runs.get(tid, ()):
+                key = (tid, run.first)
+                if run.exit_s < s_m or key in single.given or key in single.done:
+                    continue
+                if any(x == tid and r.first == run.first for x, r in single.order.get(run.stretch, ())):
+                    best = min(best, self.rear_floor(tid, run.entry_s))
+        for ap in self.approaches.get(tid, ()):
+            if ap.s_m < s_m:
+                continue
+            j = self.junctions[ap.node]
+            if (j.order or tid in j.first) and self._waits_for_foe(j, tid, ap.track, None):
+                best = min(best, self.rear_floor(tid, ap.s_m))
+        return best
+
+    def _changed(self) -> None:
+        self.version += 1
+
+    def rear_floor(self, tid: str, rear_m: float) -> float:
+        """The route position where :meth:`behind_rear` ends the authority behind a rear at ``rear_m``,
+        at its lowest over the train's front positions (FBS: the signal it ends at, or the on-sight
+        point, less the position error; otherwise the margin and position errors behind it), m."""
+        sig = self.signals.get(tid)
+        if sig is None:
+            return rear_m - self.model.margin_m
+        a = self.model.assumptions
+        clear = rear_m - a.overlap_m - a.position_error_m
+        k = bisect_right(sig, clear) - 1
+        return (sig[k] if k >= 0 else clear) - a.position_error_m
 
     def fouling_gap(self, tid: str, s_m: float, leader: str, leader_s_m: float) -> float | None:
         """While a train crossing into this train's route at a merge still has its rear on the other

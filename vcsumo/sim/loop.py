@@ -332,12 +332,14 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             # ---------------------------------------------------------------- supervision (braking curves)
             perms: list = [None] * len(rows)
             if supervisor is not None:
-                odometry = supervisor.reads_odometry
+                odometry, quiet = supervisor.reads_odometry, supervisor.quiet
                 for i, (vid, tr, s_now, speed, _a, _e, lead, gap, controlled) in enumerate(rows):
                     if odometry:
                         supervisor.observe(vid, t, obs[vid][4])
                     if not controlled:
-                        perms[i] = supervisor.permitted(vid, t, s_now, speed, gap, lead[0] if lead else None)
+                        lead_id = lead[0] if lead else None
+                        if not quiet(vid, t, s_now, speed, gap, lead_id):
+                            perms[i] = supervisor.permitted(vid, t, s_now, speed, gap, lead_id)
             c = clock()
             cpu["supervision"] += c - c_mark
             c_mark = c

@@ -36,6 +36,8 @@ single track leaves a junction as two one-way edges).
 
 from __future__ import annotations
 
+from typing import Callable
+
 import math
 from bisect import bisect_right
 from dataclasses import dataclass
@@ -124,8 +126,10 @@ class SingleTrackLocking:
     """Gives the stretches of single track to one direction at a time (module doc)."""
 
     def __init__(self, model: SeparationModel, topo: Topology, trains: list[PlannedTrain], braking: dict[str, RouteBraking],
-                 behind_rear, lock_time_s: float = LOCK_TIME_S):
+                 behind_rear, lock_time_s: float = LOCK_TIME_S, on_change: Callable[[], None] | None = None):
         self.model = model
+        self.on_change = on_change or (lambda: None)
+        """Called whenever a request is made, granted or released (a bound built on the state is then stale)."""
         self.braking = braking
         self.behind_rear = behind_rear
         """(train, route position, point to keep clear) -> distance to the end of authority in front of it, m."""
@@ -180,14 +184,17 @@ class SingleTrackLocking:
                     if run.starts_inside or s_m >= run.entry_s:  # already on it (departed there): holds it from now
                         queue.insert(0, (tid, run))
                         self.given.add(key)
+                        self.on_change()
                         continue
                     d = self.hold_distance(tid, run, s_m)
                     br, ahead = self.braking[tid], v * self.lock_time_s + a.position_error_m
                     if d > br.stopping_bound(v, a.dead_time_s) + ahead or d > br.stopping_distance(s_m, v, a.dead_time_s) + ahead:
                         break  # not yet (nor any later stretch of its route)
                     queue.append((tid, run))
+                    self.on_change()
                 if self._may_have(tid, run):
                     self.given.add(key)
+                    self.on_change()
                 else:
                     self._constrain(tid, run, new)
                 break  # one stretch at a time: the next one is asked for once this one is held
@@ -201,6 +208,7 @@ class SingleTrackLocking:
                 if tid in self.gone or (st is not None and not run.ends_inside and st[0] - length > run.exit_s + clear):
                     self.done.add((tid, run.first))
                     self.given.discard((tid, run.first))
+                    self.on_change()
                 else:
                     keep.append((tid, run))
             self.order[k] = keep
@@ -226,6 +234,8 @@ class SingleTrackLocking:
     def arrived(self, gone: list[str]) -> None:
         """Trains that left the network."""
         self.gone.update(gone)
+        if gone:
+            self.on_change()
 
     def hold_distance(self, tid: str, run: Run, s_m: float) -> float:
         """Distance from the front to where the train's authority ends in front of the stretch, m."""

@@ -82,6 +82,21 @@ class _Curves:
     odo_m: float = 0.0
     history_t: deque = field(default_factory=deque)
     history_odo: deque = field(default_factory=deque)
+    quiet_from: float = math.inf
+    quiet_until: float = -math.inf
+    """Front positions [from, until) where no target can come within reach (:meth:`BrakingCurveSupervisor.quiet`), m."""
+    quiet_recheck: float = -math.inf
+    """The nearest target the window was bounded by: before the front passes it the window is not looked for again, m."""
+    quiet_version: int = -1
+    """The interlocking's :attr:`~vcsumo.sim.interlocking.MergeLocking.version` the window was found with."""
+    quiet_v: float = -math.inf
+    """The highest speed the window holds for, m/s."""
+    quiet_gap: float = math.inf
+    """The window holds while the train ahead is farther than this, m."""
+    quiet_stop: int = -1
+    """The next stop (``next_stop``) the window was found with."""
+    quiet_v_failed: float = math.inf
+    """The speed at which the last look found no window (looked for again below 90 % of it), m/s."""
 
 
 class Permitted(NamedTuple):
@@ -149,6 +164,16 @@ class BrakingCurveSupervisor:
             restrictions = t.profile.restriction_targets()
             self.curves[t.id] = _Curves(t, restrictions, stops, end_s, sorted((signals or {}).get(t.id, [])), braking,
                                         [x for x, _ in restrictions], platform_from=[x - length if length > 0 else x for x, length in at])
+
+        v_cap = max(t.stock.max_speed_ms for t in trains) * 1.2 + 10.0 if trains else 0.0
+        moved = v_cap * (self.fixed_time_s + a.position_report_period_s + 2.0 * step_s) if self._history else 0.0
+        if regime == "mb":
+            self._gap_slack = moved + self._margin + self._uncertainty + 1.0
+        else:
+            spacing = {tid: max((b - a_ for a_, b in zip(c.signals, c.signals[1:])), default=0.0) for tid, c in self.curves.items()}
+            self._gap_slack_of = {tid: moved + self._overlap + 2.0 * self._pos_err + spacing[tid] + 1.0 for tid in self.curves}
+        self._v_window: dict[str, float] = {}
+        """Per train: the highest speed a quiet window is looked for at (:meth:`quiet`), m/s."""
 
     @property
     def reads_odometry(self) -> bool:
@@ -220,6 +245,61 @@ class BrakingCurveSupervisor:
             # no signal between the train and the rear of the one ahead: it moves on sight behind it
             return clear - s_m - err
         return signals[k] - s_m - err
+
+    def quiet(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None) -> bool:
+        """True when :meth:`permitted` would find nothing ahead within reach (permitted speed inf,
+        authority beyond the reach), known from bounds without computing a curve.
+
+        A *quiet window* is kept per train: a stretch of route [from, until), a speed and a gap such
+        that with the front in the stretch, at most that speed and the train ahead farther than that
+        gap, every target — speed restrictions, the next stop, the end, the last signal (FBS), the
+        junctions and stretches of single track ahead (:meth:`MergeLocking.authority_floor`), the
+        end of authority behind the train ahead (less margin, overlap, position errors, the longest
+        block and how far that train can have run since the position the authority is built from) —
+        lies beyond the reach at that speed.  Every bound is an upper bound of what
+        :meth:`permitted` computes, so the loop skips it only where the answer is known;
+        tests/test_supervision_quiet.py checks this against :meth:`permitted` at every step of real
+        runs (same arguments as :meth:`permitted`; ``now_s`` and ``leader_id`` are not needed)."""
+        c = self.curves.get(train_id)
+        if c is None:
+            return True
+        if c.quiet_stop == c.next_stop and (self.locking is None or c.quiet_version == self.locking.version) and c.quiet_from <= s_m:
+            if s_m < c.quiet_until and v_mps <= c.quiet_v:
+                return gap_m > c.quiet_gap  # the window holds: only the train ahead decides
+            if s_m < c.quiet_recheck and v_mps >= 0.9 * c.quiet_v_failed:
+                return False  # nothing that could open a window has changed since the last look found none
+        self._quiet_window(train_id, c, s_m, v_mps)
+        return c.quiet_from <= s_m < c.quiet_until and gap_m > c.quiet_gap
+
+    def _quiet_window(self, train_id: str, c: _Curves, s_m: float, v_mps: float) -> None:
+        """The quiet window from ``s_m`` for speeds up to a little above ``v_mps`` (:meth:`quiet`)."""
+        v_cap = self._v_window.get(train_id)
+        if v_cap is None:  # the stock's top speed (the bound's braking is constant below it), or the route's
+            v_cap = self._v_window[train_id] = min(c.braking.stock.max_speed_ms, c.plan.profile.max_speed() + 1.0)
+        c.quiet_from, c.quiet_until, c.quiet_recheck = s_m, -math.inf, 0.0
+        c.quiet_stop = c.next_stop
+        c.quiet_version = self.locking.version if self.locking is not None else 0
+        if v_mps > v_cap or s_m < 0.0:  # (before the start of its route permitted looks at every target: again from 0)
+            c.quiet_v_failed = v_mps
+            return
+        v_q = min(v_cap, 1.1 * v_mps + 5.0)
+        reach = 1.3 * c.braking.stopping_bound(v_q, self._dead_s + 2 * self.step_s) + 50.0
+        rs = c.restriction_s
+        k0 = bisect_right(rs, s_m)
+        nearest = rs[k0] if k0 < len(rs) else math.inf
+        if c.next_stop < len(c.stops):
+            nearest = min(nearest, c.stops[c.next_stop])
+        if c.end_s is not None:
+            nearest = min(nearest, c.end_s - self._pos_err)
+        if self.regime == "fbs" and c.signals:
+            nearest = min(nearest, c.signals[-1] - self._pos_err)
+        if self.locking is not None:
+            nearest = min(nearest, self.locking.authority_floor(train_id, s_m))
+        c.quiet_until = nearest - reach - 1.0
+        c.quiet_recheck = nearest
+        c.quiet_v = v_q
+        c.quiet_gap = reach + (self._gap_slack if self.regime == "mb" else self._gap_slack_of[train_id])
+        c.quiet_v_failed = v_mps if s_m >= c.quiet_until else math.inf
 
     def permitted(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None) -> Permitted:
         """The lowest braking curve over the train's targets, for the next step, m/s.
