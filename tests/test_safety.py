@@ -10,8 +10,8 @@ from vcsumo.control.base import Command
 from vcsumo.errors import InputError
 from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.studies.safety import (
-    SAFETY_COLUMNS, SafetyCampaign, SampledController, check_campaign, draw_scenario, line_route, read_safety, run_safety_campaign, run_scenario,
-    scenario_task, summarize_safety, violation_upper_bound,
+    SAFETY_COLUMNS, SafetyCampaign, SampledController, check_campaign, draw_scenario, line_route, read_safety, run_faults, run_safety_campaign,
+    run_scenario, scenario_task, summarize_safety, violation_upper_bound,
 )
 
 
@@ -103,6 +103,76 @@ def test_summary_states_the_campaign_size_and_the_bound():
     s = summarize_safety(pd.DataFrame(rows)).iloc[0]
     assert s["scenarios"] == 20 and s["failed_runs"] == 1 and s["scenarios_with_violation"] == 2 and s["separation_violations"] == 3
     assert s["violation_rate"] == 0.1 and s["violation_rate_upper95"] == pytest.approx(violation_upper_bound(2, 20))
+
+
+def _run(scenario: str, controller: str = "cbf-cbc", **kw) -> dict:
+    """A finished row of safety.csv: a clean supervised run unless ``kw`` says otherwise."""
+    row = {c: 0 for c in SAFETY_COLUMNS} | {
+        "key": f"h:offline:{scenario}:{controller}", "loop": "offline", "scenario": scenario, "controller": controller, "supervised": controller.startswith("cbf-"),
+        "line": "hcmc_line1", "direction": "up", "kind": "cruise", "followers": 1, "leader_stock": "hcmc_l1", "follower_stocks": "hcmc_l1",
+        "initial_gap_m": 300.0, "min_gap_m": 120.0, "min_margin_m": 5.0, "initial_true_barrier_m": -40.0, "max_true_barrier_m": -2.0, "error": ""}
+    if not row["supervised"]:
+        row |= {"initial_true_barrier_m": math.nan, "max_true_barrier_m": math.nan}
+    return row | kw
+
+
+# one finished run per case of the rule, and what is wrong with it (None: clean)
+VERDICT_RUNS = {
+    "clean": (_run("s00000"), None),
+    "clean, unsupervised": (_run("s00001", "cbc"), None),
+    "started outside the safe set, b never above b(0)": (_run("s00002", initial_true_barrier_m=3.0, max_true_barrier_m=3.0), None),
+    "violation only": (_run("s00003", separation_violations=1, min_margin_m=-0.4, below_separation_time_s=1.2), "a separation violation"),
+    "collision only": (_run("s00004", collisions=1, max_impact_kmh=4.0), "a collision"),
+    "barrier breach only": (_run("s00005", max_true_barrier_m=0.5), "a barrier breach"),
+    "breach above b(0) > 0": (_run("s00006", initial_true_barrier_m=3.0, max_true_barrier_m=3.5), "a barrier breach"),
+}
+
+
+def _cli_on(rows: list[dict], monkeypatch, tmp_path, capsys) -> tuple[int, pd.DataFrame, str, str]:
+    """``vcsumo study safety`` on a campaign whose runs are ``rows``: its exit status, the summary it
+    writes, its stdout and its stderr but the progress bar (nothing is simulated)."""
+    from vcsumo.studies import safety
+
+    written = {}
+    df = pd.DataFrame(rows, columns=SAFETY_COLUMNS)
+    monkeypatch.setattr(safety, "run_safety_campaign", lambda cfg, out, **kw: df.copy())
+    monkeypatch.setattr(safety, "write_safety_report", lambda out, cfg, d, summary, t: written.setdefault("summary", summary))
+    capsys.readouterr()
+    code = main(["study", "safety", "--scenarios", str(len(rows)), "--workers", "1", "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    return code, written["summary"], cap.out, "\n".join(ln for ln in cap.err.splitlines() if "safety (offline)" not in ln)  # without the progress bar
+
+
+@pytest.mark.parametrize("case", list(VERDICT_RUNS))
+def test_the_exit_status_and_the_summary_judge_a_run_by_one_rule(case, monkeypatch, tmp_path, capsys):
+    """A run alone: the CLI exits 1 exactly when the summary counts it (a violation, a collision or a
+    barrier breach), with one line naming what was wrong; else 0 and the bar is met."""
+    row, wrong = VERDICT_RUNS[case]
+    code, summary, out, err = _cli_on([row], monkeypatch, tmp_path, capsys)
+    s = summary.iloc[0]
+    counted = int(s["scenarios_with_violation"]) + int(s["barrier_breaches"])
+    assert code == (1 if wrong else 0) and counted == (1 if wrong else 0), (code, s.to_dict())
+    assert ("bar met" in out) == (wrong is None) and ("bar NOT met" in out) == (wrong is not None)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    if wrong:
+        assert lines == [f"error: 1 of 1 runs of the safety campaign is not clean (1 not healthy: 1 with {wrong}); "
+                         f"results kept in {tmp_path / 'o' / 'safety.csv'}"]
+    else:
+        assert lines == []
+
+
+def test_summary_counts_and_exit_verdict_agree_on_a_mixed_campaign(monkeypatch, tmp_path, capsys):
+    rows = [row for row, _ in VERDICT_RUNS.values()] + [_run("s00007", "cbc", error="boom")]
+    code, summary, out, err = _cli_on(rows, monkeypatch, tmp_path, capsys)
+    finished = pd.DataFrame(rows[:-1])
+    faults = run_faults(finished)
+    assert [list(faults.columns[r]) for _, r in faults.iterrows()] == [[], [], [], ["separation_violation"], ["collision"], ["barrier_breach"],
+                                                                        ["barrier_breach"]]
+    assert summary["scenarios_with_violation"].sum() == 2 and summary["collisions"].sum() == 1 and summary["barrier_breaches"].sum() == 2
+    assert summary["failed_runs"].sum() == 1 and summary["scenarios"].sum() == 7
+    assert code == 1 and "bar NOT met" in out
+    assert err.strip() == (f"error: 5 of 8 runs of the safety campaign are not clean (1 failed, 4 not healthy: 1 with a separation violation, "
+                           f"1 with a collision, 2 with a barrier breach); results kept in {tmp_path / 'o' / 'safety.csv'}")
 
 
 def test_campaign_resumes_and_keeps_finished_rows(tmp_path):

@@ -12,7 +12,6 @@ import time
 from pathlib import Path
 
 import click
-import pandas as pd
 from pydantic import ValidationError
 
 from vcsumo.cli.ui import out_console, print_table, progress_bar
@@ -56,7 +55,9 @@ def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: in
                max_duration_s: float, cbf_config: str | None, assumptions: str | None, out: Path | None) -> None:
     """Monte Carlo safety campaign: leader emergency brakes, lossy delayed channel, outages, uncertain and heterogeneous trains, odometry errors."""
     from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
-    from vcsumo.studies.safety import SafetyCampaign, bar_met, run_safety_campaign, summarize_safety, write_safety_report
+    from vcsumo.studies.safety import (
+        SafetyCampaign, bar_met, describe_run_faults, run_faults, run_safety_campaign, summarize_safety, write_safety_report,
+    )
 
     try:
         cfg = SafetyCampaign(loop=loop, scenarios=scenarios, lines=_csv(lines), controllers=_csv(controllers), seed=seed, step_s=step_s,
@@ -96,8 +97,7 @@ def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: in
         out_console.print(f"  failed: {r['scenario']} {r['controller']}: {r['error']}{more}", markup=False, highlight=False)
     if len(df) == 0 or len(failed) == len(df):
         raise CampaignFailed(f"every run of the safety campaign failed ({len(failed)} of {len(df)}; errors above and in {out / 'safety.csv'})")
-    ok = df[df["error"] == ""]
-    b0 = pd.to_numeric(ok["initial_true_barrier_m"], errors="coerce").fillna(0.0).clip(lower=0.0)
-    breach = pd.to_numeric(ok["max_true_barrier_m"], errors="coerce") > b0 + 1e-6  # the summary's barrier breach, per run
-    bad = int(((ok["separation_violations"] > 0) | (ok["collisions"] > 0) | breach).sum())
-    require_clean("the safety campaign", len(df), len(failed), bad, out / "safety.csv", noun="runs")
+    faults = run_faults(df[df["error"] == ""])  # the rule the summary counts by, per run
+    unsafe = faults.any(axis=1)
+    require_clean("the safety campaign", len(df), len(failed), int(unsafe.sum()), out / "safety.csv", noun="runs",
+                  unhealthy_detail=describe_run_faults(faults[unsafe]))

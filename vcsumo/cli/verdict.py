@@ -33,15 +33,17 @@ def count_not_healthy(healthy: pd.Series) -> int:
     return int(not_healthy(healthy).sum())
 
 
-def require_clean(what: str, total: int, failed: int, unhealthy: int, where: Path | str, noun: str = "cases") -> None:
+def require_clean(what: str, total: int, failed: int, unhealthy: int, where: Path | str, noun: str = "cases", unhealthy_detail: str = "") -> None:
     """Raise :class:`NotClean` when ``failed`` cases failed or ``unhealthy`` finished cases are not healthy.
 
     ``what`` names the command's study ("the batch"), ``total`` its cases, ``where`` the table
-    holding the rows (named in the message).
+    holding the rows (named in the message), ``unhealthy_detail`` what was wrong with the unhealthy
+    ones ("2 with a collision"; written after their count).
     """
     if not failed and not unhealthy:
         return
-    parts = ([f"{failed} failed"] if failed else []) + ([f"{unhealthy} not healthy"] if unhealthy else [])
+    detail = f": {unhealthy_detail}" if unhealthy_detail else ""
+    parts = ([f"{failed} failed"] if failed else []) + ([f"{unhealthy} not healthy{detail}"] if unhealthy else [])
     n = failed + unhealthy
     raise NotClean(f"{n} of {total} {noun} of {what} {'is' if n == 1 else 'are'} not clean ({', '.join(parts)}); results kept in {where}")
 

@@ -393,6 +393,41 @@ SUMMARY_COLUMNS = [
 ]
 
 
+BARRIER_TOLERANCE_M = 1e-6
+"""How far the CBF's true barrier may rise above max(b(0), 0) before the run is a barrier breach, m
+(and how far above 0 b(0) must be for a run to have started outside the safe set)."""
+
+RUN_FAULTS = {"separation_violation": "a separation violation", "collision": "a collision", "barrier_breach": "a barrier breach"}
+"""The safety faults of a finished run (the columns of :func:`run_faults`) and how a message names them."""
+
+
+def run_faults(runs: pd.DataFrame) -> pd.DataFrame:
+    """Which safety faults each finished run (a row of ``safety.csv`` without error) has: one boolean
+    column per :data:`RUN_FAULTS` —
+
+    * ``separation_violation``: an episode below the safe separation of the run-health monitor's rule;
+    * ``collision``: the gap reached 0;
+    * ``barrier_breach`` (CBF-supervised runs): the largest true barrier rose above max(b(0), 0) +
+      :data:`BARRIER_TOLERANCE_M` (Theorem VI.1: from b(0) ≤ 0, b stays ≤ 0; a run started with
+      b(0) > 0 must not see b rise above b(0)); never for unsupervised runs (NaN barrier).
+
+    A run is clean when no column is true.  The one rule behind both :func:`summarize_safety`'s
+    counts and the exit status of ``vcsumo study safety``."""
+    b0 = pd.to_numeric(runs["initial_true_barrier_m"], errors="coerce")
+    bmax = pd.to_numeric(runs["max_true_barrier_m"], errors="coerce")
+    return pd.DataFrame({
+        "separation_violation": runs["separation_violations"] > 0,
+        "collision": runs["collisions"] > 0,
+        "barrier_breach": bmax > b0.fillna(0.0).clip(lower=0.0) + BARRIER_TOLERANCE_M,
+    }, index=runs.index, columns=list(RUN_FAULTS))
+
+
+def describe_run_faults(faults: pd.DataFrame) -> str:
+    """How many runs have each fault of :func:`run_faults`, for a message: "2 with a separation
+    violation, 1 with a barrier breach" (faults no run has are left out; a run with two faults counts in both)."""
+    return ", ".join(f"{int(faults[col].sum())} with {name}" for col, name in RUN_FAULTS.items() if faults[col].any())
+
+
 def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
     """One row per loop and controller: the campaign size (``scenarios``: runs without error),
     scenarios with a separation violation (the monitor's rule) or a collision, their rate and its 95 %
@@ -404,9 +439,8 @@ def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
     for (loop, c), g in df.assign(loop=loops).groupby(["loop", "controller"], sort=False):
         ok = g[g["error"] == ""]
         n = len(ok)
-        b0 = pd.to_numeric(ok["initial_true_barrier_m"], errors="coerce")
-        bmax = pd.to_numeric(ok["max_true_barrier_m"], errors="coerce")
-        bad = int(((ok["separation_violations"] > 0) | (ok["collisions"] > 0)).sum())
+        faults = run_faults(ok)
+        bad = int((faults["separation_violation"] | faults["collision"]).sum())
 
         def agg(col: str, fn: str) -> float:
             x = pd.to_numeric(ok[col], errors="coerce")
@@ -417,9 +451,9 @@ def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
             "scenarios": n, "failed_runs": int((g["error"] != "").sum()), "scenarios_with_violation": bad,
             "violation_rate": bad / n if n else math.nan, "violation_rate_upper95": violation_upper_bound(bad, n),
             "separation_violations": int(ok["separation_violations"].sum()), "collisions": int(ok["collisions"].sum()), "max_impact_kmh": agg("max_impact_kmh", "max"),
-            "min_gap_m": agg("min_gap_m", "min"), "min_margin_m": agg("min_margin_m", "min"), "max_true_barrier_m": float(bmax.max()) if n else math.nan,
-            # Theorem VI.1: from b(0) ≤ 0, b stays ≤ 0; a run started with b(0) > 0 must not see b rise above b(0)
-            "started_outside_safe_set": int((b0 > 1e-6).sum()), "barrier_breaches": int((bmax > b0.fillna(0.0).clip(lower=0.0) + 1e-6).sum()),
+            "min_gap_m": agg("min_gap_m", "min"), "min_margin_m": agg("min_margin_m", "min"), "max_true_barrier_m": agg("max_true_barrier_m", "max"),
+            "started_outside_safe_set": int((pd.to_numeric(ok["initial_true_barrier_m"], errors="coerce") > BARRIER_TOLERANCE_M).sum()),
+            "barrier_breaches": int(faults["barrier_breach"].sum()),
             "emergency_activations_mean": agg("emergency_activations", "mean"), "emergency_time_s_mean": agg("emergency_time_s", "mean"),
             "time_lost_s_mean": agg("time_lost_s", "mean"), "time_lost_s_p95": float(pd.to_numeric(ok["time_lost_s"], errors="coerce").quantile(0.95)) if n else math.nan,
             "wall_time_s_mean": agg("wall_time_s", "mean"),
