@@ -149,3 +149,41 @@ def test_network_of_lines_morning(tmp_path, checked):
     trains = plan_trains(tt, path, net, build_network(net).topology)
     _simulate(tmp_path, net, trains, "fbs", end_time_s=parse_clock("06:30"))
     _assert_exercised(checked, min_quiet=1000)
+
+
+def _locking_events(tmp_path, monkeypatch, line, trains, regime, look_every_step: bool):
+    """Every order change and constraint of the approach locking, with its time."""
+    from vcsumo.sim import interlocking
+
+    events = []
+    update = interlocking.MergeLocking.update
+
+    def recorded(self, states):
+        new = update(self, states)
+        events.append((len(events), self.version, tuple(new), tuple((n, tuple(j.order)) for n, j in sorted(self.junctions.items()))))
+        return new
+
+    monkeypatch.setattr(interlocking.MergeLocking, "update", recorded)
+    if look_every_step:
+        monkeypatch.setattr(interlocking.MergeLocking, "_quiet_until", lambda self, tid, s_m, v, pending: (self.version, s_m, -math.inf, -math.inf))
+    _simulate(tmp_path, line, trains, regime)
+    monkeypatch.undo()
+    return events
+
+
+@pytest.mark.parametrize("regime", ["fbs", "mb"])
+def test_approach_locking_skips_nothing_it_would_do(tmp_path, monkeypatch, regime):
+    """MergeLocking.update leaves out trains with no junction within reach (its quiet stretch): the
+    orders and constraints it makes, step by step, are those of looking at every train every step
+    (italy_av_north's morning: services from Milano, Venezia and Firenze converging on Bologna)."""
+    from vcsumo.network_file import load_line_or_network
+    from vcsumo.sim.network import build_network
+    from vcsumo.units import parse_clock
+
+    net = load_line_or_network("italy_av_north")
+    tt, path = load_timetable("full_day", net)
+    trains = [t for t in plan_trains(tt, path, net, build_network(net).topology) if t.depart_s < parse_clock("07:00")]
+    fast = _locking_events(tmp_path / "a", monkeypatch, net, trains, regime, look_every_step=False)
+    full = _locking_events(tmp_path / "b", monkeypatch, net, trains, regime, look_every_step=True)
+    assert len(full) > 1000 and len({ev[3] for ev in full}) > 10  # trains locked and cleared the junctions
+    assert fast == full

@@ -136,6 +136,8 @@ class MergeLocking:
         self.s_m: dict[str, float] = {}
         """Latest route position of every running train's front, m."""
         self.version = 0
+        self._quiet: dict[str, tuple[int, float, float, float]] = {}
+        """Per train: the stretch where :meth:`update` has nothing to do for it (:meth:`_quiet_until`)."""
         """Counts the changes of the orders at the junctions and on single track (a bound built on them,
         :meth:`authority_floor`, holds while it is unchanged)."""
         self.single = SingleTrackLocking(model, topo, trains, braking, self.behind_rear, lock_time_s, on_change=self._changed)
@@ -150,26 +152,37 @@ class MergeLocking:
         dead, err, lock_s = a.dead_time_s, a.position_error_m, self.lock_time_s
         new: list[tuple[str, str, str]] = []
         self.s_m.update({tid: st[0] for tid, st in states.items()})
-        approaches, junctions = self.approaches, self.junctions
+        approaches, junctions, quiet = self.approaches, self.junctions, self._quiet
         for tid, (s_m, v) in states.items():
             aps = approaches.get(tid)
             if not aps:
                 continue
+            q = quiet.get(tid)
+            if q is not None and q[0] == self.version and q[1] <= s_m < q[2] and v <= q[3]:
+                continue  # no junction ahead within reach, no order changed since the last look (_quiet_until)
+            version = self.version
             stop = None  # the train's stopping distance, integrated once and only for a junction within its bound
+            bound = None
+            pending = []
             for ap in aps:
                 j = junctions[ap.node]
                 if tid in j.order or tid in j.cleared:
                     continue
                 if tid in j.first:
                     self._constrain(j, tid, new)  # a fixed order holds from the start: SUMO never sets the route first
+                pending.append(ap.s_m)
                 d = ap.s_m - s_m
                 if stop is None:
                     br = self.braking[tid]
-                    if s_m >= 0.0 and d > br.stopping_bound(v, dead) + v * lock_s + err:
+                    if bound is None:
+                        bound = br.stopping_bound(v, dead) + v * lock_s + err
+                    if s_m >= 0.0 and d > bound:
                         continue  # farther than the train can need (and so are the junctions after it; a fixed order is constrained above)
                     stop = br.stopping_distance(s_m, v, dead)
                 if d <= stop + v * lock_s + err:  # also a train already past the signal
                     self._lock(j, tid, new)
+            if self.version == version and s_m >= 0.0:
+                quiet[tid] = self._quiet_until(tid, s_m, v, pending)
         # a train leaves the order once its rear has cleared the junction (or it has left the network)
         for j in self.junctions.values():
             keep = []
@@ -189,6 +202,18 @@ class MergeLocking:
                 self.version += 1
             j.order = keep
         return new
+
+    def _quiet_until(self, tid: str, s_m: float, v: float, pending: list[float]) -> tuple[int, float, float, float]:
+        """(order version, from, until, speed): while the orders stay as they are, with the front in
+        [from, until) and at most that speed, no junction still to lock is within the train's reach
+        (the stopping bound at that speed, which rises with the speed, + the lock time's run + the
+        position error): :meth:`update` has nothing to do for it — the fixed orders were constrained
+        at this look and change only with the version."""
+        a = self.model.assumptions
+        v_q = min(self.braking[tid].stock.max_speed_ms, 1.1 * v + 5.0)
+        reach = self.braking[tid].stopping_bound(v_q, a.dead_time_s) + v_q * self.lock_time_s + a.position_error_m
+        until = min(pending, default=math.inf) - reach
+        return self.version, s_m, until, v_q if until > s_m else -math.inf
 
     def arrived(self, gone: list[str]) -> None:
         """Trains that left the network."""
