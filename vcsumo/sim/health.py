@@ -123,6 +123,12 @@ class TrainHealth:
     _beyond: bool = field(default=False, repr=False)
     _overrun: bool = field(default=False, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
+    limit_from_m: float = field(default=math.inf, repr=False)
+    limit_to_m: float = field(default=-math.inf, repr=False)
+    limit_mps: float = field(default=math.inf, repr=False)
+    """The train's permitted speed while its front is in (from, to), where it cannot change (:meth:`HealthMonitor._speed_limit`)."""
+    quick_decel_mps2: float = field(default=-math.inf, repr=False)
+    """Below this deceleration a step can be neither braking beyond service nor one SUMO may warn of."""
     hard_brakings: list[HardBraking] = field(default_factory=list, repr=False)
     """Steps above the vType's emergencyDecel (what SUMO warns of), judged as braking beyond service or not."""
 
@@ -146,14 +152,14 @@ class HealthMonitor:
         self.collision_rows: list[tuple] = []
         # the hardest service braking without resistance and grade: braking at most this is never beyond service
         self._top_speed = {t.id: t.stock.max_speed_ms for t in trains}
-        self._limits: dict[str, tuple[float, float, float]] = {}
-        """Per train: (from, to, permitted speed): the positions of the front where the speed holds."""
         self._starts: dict[int, list[float]] = {}
         self._margin_m = model.margin_m
         self._dead_s = model.dead_time_s
         self._service_floor = {t.id: self._floor_terms(t.stock) for t in trains}
         # SUMO warns above its vType's emergencyDecel (the drawn "true" train's when it runs as a variant)
         self._sumo_warn = {t.id: getattr(t.stock, "true_stock", t.stock).sumo_emergency_decel_mps2 - SUMO_WARNING_SLACK_MPS2 for t in trains}
+        for t in trains:
+            self.trains[t.id].quick_decel_mps2 = min(self._service_floor[t.id][0] + DECEL_TOLERANCE_MPS2, self._sumo_warn[t.id])
 
     def _floor_terms(self, stock) -> tuple[float, float, float, float, float]:
         """(hardest service brake, Davis A, B, C at the top of their box, lowest mass) of a train."""
@@ -218,6 +224,15 @@ class HealthMonitor:
                 required = (self.relative_gap(train_id, s_m, v_mps, leader_id, gap_m, leader_v_mps) if relative
                             else self.absolute_gap(train_id, s_m, v_mps))
                 return required if self.update(train_id, dt, s_m, v_mps, accel_mps2, gap_m, required, authority_m, driven_by_sumo, time_s) else None
+        # no gap to test this step: the rest of update(), its common case first — below the hardest service brake
+        # (and SUMO's warning), within the permitted speed on a stretch where it holds, short of the authority
+        decel = -accel_mps2
+        if decel <= h.quick_decel_mps2 and h.limit_from_m < s_m < h.limit_to_m and v_mps - h.limit_mps <= self.tol_mps \
+                and (authority_m >= -AUTHORITY_TOLERANCE_M or not driven_by_sumo):
+            if decel > h.max_decel_mps2:
+                h.max_decel_mps2 = decel
+            h._below = h._over = h._beyond = h._overrun = False
+            return None
         self.update(train_id, dt, s_m, v_mps, accel_mps2, math.inf, math.inf, authority_m, driven_by_sumo, time_s)
         return None
 
@@ -252,7 +267,8 @@ class HealthMonitor:
         hi = min(starts[i1 + 1] if i1 < n - 1 else math.inf, starts[i0 + 1] + length if i0 < n - 1 else math.inf) - 1e-3
         if any(lo - length - 1.0 <= ps <= hi + 1.0 for ps, _ in prof.point_limits):
             lo, hi = math.inf, -math.inf
-        self._limits[train_id] = (lo, hi, limit)
+        h = self.trains[train_id]
+        h.limit_from_m, h.limit_to_m, h.limit_mps = lo, hi, limit
         return limit
 
     def update(self, train_id: str, dt: float, s_m: float, v_mps: float, accel_mps2: float, gap_m: float, required_gap_m: float,
@@ -274,8 +290,7 @@ class HealthMonitor:
                     started = True
         h._below = below
         # permitted speed
-        lim = self._limits.get(train_id)
-        limit = lim[2] if lim is not None and lim[0] < s_m < lim[1] else self._speed_limit(train_id, s_m)
+        limit = h.limit_mps if h.limit_from_m < s_m < h.limit_to_m else self._speed_limit(train_id, s_m)
         excess = v_mps - limit
         over = excess > self.tol_mps
         if over:
