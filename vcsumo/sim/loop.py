@@ -45,7 +45,7 @@ from vcsumo.signalling.regimes import REGIMES, Regime
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.health import HealthMonitor
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.sim.records import CsvStream
+from vcsumo.sim.records import CsvStream, csv_plain
 from vcsumo.sim.snapshot import Driver, Snapshot, StepTrains, TrainState  # noqa: F401 (Snapshot, TrainState: the drivers' types, also from here)
 from vcsumo.sim.run_results import TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, SimulationResult, collect_results
 from vcsumo.sim.interlocking import MergeLocking
@@ -205,6 +205,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     state: dict[str, _Track] = {}
     # (its rows are built below from SUMO's floats, rounded floats and None: no per-row check)
     traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, floats_checked=True) if scn.full_outputs else None
+    # every text a trajectory row can hold needs no quoting (train ids, sections, edges and SUMO's
+    # junction lanes ':<node>_<k>'): its rows are formatted in the loop, else written by the csv module
+    plain_text = all(csv_plain(x) for x in [*plans, *topo.edges, *topo.nodes] + [sec for t in scn.trains for sec in t.profile.sections])
     pass_rows: list[tuple] = []
     collisions: list[tuple[float, str, str]] = []
     teleports: list[tuple[float, str]] = []
@@ -408,7 +411,12 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             c_mark = c
             # ---------------------------------------------------------------- recording
             if t + 1e-9 >= next_record:
-                if traj is not None:
+                if traj is not None and plain_text:  # (the csv module's bytes, formatted here: see CsvStream.extend_lines)
+                    traj.extend_lines([f"{t!r},{vid},{section},{round(km, 6)!r},{round(s_now, 3)!r},{speed!r},{accel!r},"
+                                       f"{'' if gap == math.inf else repr(round(gap, 3))},{lead[0] if lead else ''},{edge}\n"
+                                       for vid, tr, s_now, speed, accel, edge, lead, gap, _c in rows
+                                       for section, km in (tr.plan.profile.km_at(s_now),)])
+                elif traj is not None:
                     recs = []
                     for vid, tr, s_now, speed, accel, edge, lead, gap, _c in rows:
                         section, km = tr.plan.profile.km_at(s_now)

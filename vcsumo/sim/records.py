@@ -43,6 +43,8 @@ class CsvStream:
         are (the same bytes; the per-row check of the other rows is skipped)."""
         self.chunk_rows = chunk_rows
         self.rows: list[tuple] = []
+        self.lines: list[str] = []
+        """Rows the caller formatted itself (:meth:`extend_lines`)."""
         self.written = 0
         self._started = False
         self.closed = False
@@ -55,6 +57,15 @@ class CsvStream:
     def extend(self, rows: list[tuple]) -> None:
         self.rows.extend(rows)
         if len(self.rows) >= self.chunk_rows:
+            self.flush()
+
+    def extend_lines(self, lines: list[str]) -> None:
+        """Rows already formatted as the csv module writes them (fields joined by ',', a float as its
+        repr, a missing value empty, a line ending in '\\n'; only text that needs no quoting, see
+        :func:`csv_plain`) — the same bytes as :meth:`extend` of the rows, without the csv module's
+        per-field work.  A stream takes either rows or lines, not both."""
+        self.lines.extend(lines)
+        if len(self.lines) >= self.chunk_rows:
             self.flush()
 
     def frame(self, rows: list[tuple] | None = None) -> pd.DataFrame:
@@ -77,7 +88,7 @@ class CsvStream:
         return row
 
     def flush(self) -> None:
-        if not self.rows and self._started:
+        if not self.rows and not self.lines and self._started:
             return
         with open(self.path, "a" if self._started else "w", newline="") as f:
             w = csv.writer(f, lineterminator="\n")
@@ -85,14 +96,21 @@ class CsvStream:
                 w.writerow(self.columns)
             cells = self._cells
             w.writerows([cells(r) for r in self.rows] if self._float_idx and not self.floats_checked else self.rows)
+            f.write("".join(self.lines))
         self._started = True
-        self.written += len(self.rows)
+        self.written += len(self.rows) + len(self.lines)
         self.rows = []
+        self.lines = []
 
     def close(self) -> None:
         if not self.closed:
             self.flush()
             self.closed = True
+
+
+def csv_plain(text: str) -> bool:
+    """The csv module writes ``text`` as it is (no delimiter, quote or line break in it, not empty)."""
+    return bool(text) and not any(ch in text for ch in ',"\r\n')
 
 
 class RunningStats:
