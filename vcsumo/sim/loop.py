@@ -335,10 +335,10 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             # ---------------------------------------------------------------- supervision (braking curves)
             perms: list = [None] * len(rows)
             if supervisor is not None:
-                odometry, quiet = supervisor.reads_odometry, supervisor.quiet
+                if supervisor.reads_odometry:  # every train's odometer before any authority of the step is built
+                    supervisor.observe_all(t, [r[0] for r in rows], [obs[r[0]][4] for r in rows])
+                quiet = supervisor.quiet
                 for i, (vid, tr, s_now, speed, _a, _e, lead, gap, controlled) in enumerate(rows):
-                    if odometry:
-                        supervisor.observe(vid, t, obs[vid][4])
                     if not controlled:
                         lead_id = lead[0] if lead else None
                         if not quiet(vid, t, s_now, speed, gap, lead_id):

@@ -42,7 +42,7 @@ regimes (:mod:`vcsumo.signalling.regimes`) use the same decelerations and dead t
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
@@ -79,9 +79,6 @@ class _Curves:
     platform_from: list[float] = field(default_factory=list)
     """Where each stop's platform begins (the stop's position less the platform's length), m."""
     first_seen_s: float = math.nan
-    odo_m: float = 0.0
-    history_t: deque = field(default_factory=deque)
-    history_odo: deque = field(default_factory=deque)
     quiet_from: float = math.inf
     quiet_until: float = -math.inf
     """Front positions [from, until) where no target can come within reach (:meth:`BrakingCurveSupervisor.quiet`), m."""
@@ -125,6 +122,11 @@ class BrakingCurveSupervisor:
         a = model.assumptions
         self._keep_s = self.fixed_time_s + a.position_report_period_s + 2.0 * step_s
         """How long an odometer reading is kept, s."""
+        self._snap_t: deque = deque()
+        self._snap_odo: deque = deque()
+        """Times of the odometer readings kept, and each time's readings (train -> odometer, m)."""
+        self._odo_now: dict[str, float] = {}
+        self._seen: set[str] = set()
         self._dead_s = a.dead_time_s
         self._pos_err = a.position_error_m
         self._overlap = a.overlap_m
@@ -178,41 +180,48 @@ class BrakingCurveSupervisor:
     @property
     def reads_odometry(self) -> bool:
         """The authorities are built from the trains' odometer readings (MB reports, fixed times): the
-        loop hands :meth:`observe` every train's odometer at every step; else nothing reads them."""
+        loop hands :meth:`observe_all` every train's odometer at every step; else nothing reads them."""
         return self._history or self.regime == "mb"
 
     # ------------------------------------------------------------------------------------------
-    def observe(self, train_id: str, time_s: float, odometer_m: float) -> None:
-        """The train's odometer this step (kept as long as the fixed time and report period need)."""
-        c = self.curves.get(train_id)
-        if c is None:
-            return
-        if math.isnan(c.first_seen_s):
-            c.first_seen_s = time_s
-        c.odo_m = odometer_m
+    def observe_all(self, time_s: float, train_ids: list[str], odometers_m: list[float]) -> None:
+        """Every running train's odometer this step, taken before any authority of the step is built
+        (kept as long as the fixed time and report period need; a train's history starts when it is
+        first seen): every follower's authority is built from the same step's positions."""
+        now = dict(zip(train_ids, odometers_m))
+        for tid in now.keys() - self._seen:
+            c = self.curves.get(tid)
+            if c is not None:
+                c.first_seen_s = time_s
+            self._seen.add(tid)
+        self._odo_now = now
         if not self._history:
             return
-        ts = c.history_t
+        ts = self._snap_t
         ts.append(time_s)
-        c.history_odo.append(odometer_m)
+        self._snap_odo.append(now)
         oldest = time_s - self._keep_s
         while len(ts) > 2 and ts[1] <= oldest:
             ts.popleft()
-            c.history_odo.popleft()
+            self._snap_odo.popleft()
 
-    def _moved_since(self, c: _Curves, t_ref: float) -> float:
-        """How far a train has run since t_ref (from its history; since it was first seen if older), m."""
-        ts, odo = c.history_t, c.history_odo
-        if not ts:
+    def _moved_since(self, train_id: str, c: _Curves, t_ref: float) -> float:
+        """How far a train has run since t_ref (from the odometer readings kept; since it was first
+        seen if that is later), m."""
+        ts, snaps = self._snap_t, self._snap_odo
+        now = self._odo_now.get(train_id)
+        lo = bisect_left(ts, c.first_seen_s)
+        if now is None or lo >= len(ts):
             return 0.0
         i = bisect_right(ts, t_ref)
-        if i == 0:
-            return c.odo_m - odo[0]
+        if i <= lo:
+            return now - snaps[lo][train_id]
         if i >= len(ts):
             return 0.0  # (also every FBS authority without fixed times: t_ref is now)
         t0, t1 = ts[i - 1], ts[i]
-        then = odo[i - 1] + (odo[i] - odo[i - 1]) * (t_ref - t0) / max(t1 - t0, 1e-9)
-        return c.odo_m - then
+        odo0, odo1 = snaps[i - 1][train_id], snaps[i][train_id]
+        then = odo0 + (odo1 - odo0) * (t_ref - t0) / max(t1 - t0, 1e-9)
+        return now - then
 
     def information_time(self, leader_id: str, now_s: float) -> float:
         """Time of the train ahead's position the follower's authority is built from, s: ``fixed_time_s``
@@ -230,7 +239,7 @@ class BrakingCurveSupervisor:
             return math.inf
         lead = self.curves.get(leader_id)
         # (without a history the authority is built from the present position: nothing moved since)
-        moved = 0.0 if lead is None or not self._history else self._moved_since(lead, self.information_time(leader_id, now_s))
+        moved = 0.0 if lead is None or not self._history else self._moved_since(leader_id, lead, self.information_time(leader_id, now_s))
         rear = s_m + gap_m - moved
         if self.regime == "mb":
             return rear - s_m - self._margin - self._uncertainty
