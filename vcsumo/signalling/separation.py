@@ -197,6 +197,51 @@ def strongest_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str, 
     return float(a) if np.ndim(a) == 0 else a
 
 
+_TERMS: dict[tuple[int, int, str], tuple] = {}
+"""(stock, assumption set, brake kind) -> the constants of :func:`guaranteed_decel` and
+:func:`strongest_decel` for plain-float arguments (kept with the objects they are of, so an id is
+never reused while its entry lives)."""
+
+
+def _decel_terms(stock: RollingStock, assumptions: AssumptionSet, kind: str) -> tuple:
+    key = (id(stock), id(assumptions), kind)
+    hit = _TERMS.get(key)
+    if hit is not None and hit[0] is stock and hit[1] is assumptions:
+        return hit
+    low, high = brake_range(stock, assumptions, kind)
+    box = stock.uncertainty
+    m_high = stock.mass_kg if box is None else box.mass_kg.high
+    a_res = stock.davis_a_n if box is None else box.davis_a_n.low
+    p_low = None
+    if stock.max_brake_power_w is not None and kind == "service":
+        p_low = stock.max_brake_power_w if box is None or box.max_brake_power_w is None else box.max_brake_power_w.low
+    p = stock.params()
+    if box is not None:
+        p = p.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
+    m_low = stock.mass_kg if box is None else box.mass_kg.low
+    hit = _TERMS[key] = (stock, assumptions, float(low), m_high, a_res, p_low, stock.rotating_mass_factor, float(high),
+                         p.davis_a_n, p.davis_b_n_per_mps, p.davis_c_n_per_mps2, m_low)
+    return hit
+
+
+def _guaranteed_decel_float(stock: RollingStock, assumptions: AssumptionSet, kind: str, v_mps: float, grade_low: float) -> float:
+    """:func:`guaranteed_decel` of plain floats: the same operations in the same order, without numpy."""
+    _, _, low, m_high, a_res, p_low, rho, *_ = _decel_terms(stock, assumptions, kind)
+    brake = low
+    if p_low is not None:
+        brake = min(brake, p_low / (m_high * max(v_mps, 0.1)))
+    a = (brake + a_res / m_high + G * min(grade_low, 0.0)) / rho
+    if a <= 0.0:
+        raise ValueError(f"{stock.name}: no guaranteed braking on a {1000 * grade_low:.1f} ‰ descent")
+    return a
+
+
+def _strongest_decel_float(stock: RollingStock, assumptions: AssumptionSet, kind: str, v_mps: float, grade_high: float, tunnel_factor: float) -> float:
+    """:func:`strongest_decel` of plain floats: the same operations in the same order, without numpy."""
+    *_, high, d_a, d_b, d_c, m_low = _decel_terms(stock, assumptions, kind)
+    return high + (d_a + d_b * v_mps + tunnel_factor * d_c * v_mps * v_mps) / m_low + G * max(grade_high, 0.0)
+
+
 # -------------------------------------------------------------------------------------------
 # The rules of the regimes
 
@@ -224,6 +269,9 @@ class SeparationModel:
                   grade_l: float = 0.0) -> tuple[float, float]:
         """(follower's guaranteed, leader's strongest) deceleration of the relative-braking rule, m/s²."""
         kind = self.assumptions.relative_braking
+        if type(v_f) is float and type(v_l) is float and type(grade_f) is float and type(grade_l) is float:  # (the per-step case)
+            return (_guaranteed_decel_float(follower, self.assumptions, kind, v_f, grade_f),
+                    _strongest_decel_float(leader, self.assumptions, kind, v_l, grade_l, 1.5))
         return (guaranteed_decel(follower, self.assumptions, kind, v_f, grade_f),
                 strongest_decel(leader, self.assumptions, kind, v_l, grade_l))
 
