@@ -51,7 +51,7 @@ from vcsumo.sim.run_results import TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, Simula
 from vcsumo.sim.interlocking import MergeLocking
 from vcsumo.sim.single_track_lock import OpposingTrains
 from vcsumo.sim.supervision import BrakingCurveSupervisor
-from vcsumo.sim.route_leaders import RouteLeaders
+from vcsumo.sim.trains_ahead import TrainsAhead
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
 from vcsumo.sim.sumo_io import write_sumocfg
 from vcsumo.timetable import PlannedTrain, routes_xml
@@ -148,8 +148,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     """Run a scenario in SUMO, writing SUMO outputs and vcsumo's CSVs into ``out``.
 
     Per step the work is proportional to the trains running: SUMO keeps them in one list
-    (:meth:`SumoBackend.running`), their values are read in one pass, the train ahead beyond
-    SUMO's look-ahead is found from the route's edges, and the trajectory rows go to disk in chunks
+    (:meth:`SumoBackend.running`), their values are read in one pass, the train ahead is found from
+    the routes' own index (:class:`~vcsumo.sim.trains_ahead.TrainsAhead`), and the trajectory rows go to disk in chunks
     (:class:`vcsumo.sim.records.CsvStream`).  The CPU time of each part of the loop (SUMO stepping,
     observation, supervision, health, recording, driver, I/O) is in ``summary["loop_cpu_s"]``.
     """
@@ -189,8 +189,6 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             route_starts[key] = [float(x) for x in plan.profile.starts_m]
         return route_starts[key]
 
-    lengths = {t.id: t.stock.length_m for t in scn.trains}
-    max_length = max(lengths.values())
     portals: dict[int, list[float]] = {}
 
     def tunnel_stretch(prof, s_m: float) -> tuple[float, float]:
@@ -248,7 +246,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         if supervisor is not None:
             supervisor.held_at_stop = sim.at_stop
         t = sim.time
-        ahead_on_route = RouteLeaders(sim, max_length, lookahead)
+        ahead = TrainsAhead(sim, {p.id: p.profile.edges for p in scn.trains}, lookahead)
         while True:
             # ---------------------------------------------------------------- SUMO
             t0 = time.perf_counter()
@@ -279,8 +277,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             train_steps += len(active)
             observed = sim.observe_all(active)  # (edge, lane pos, speed, accel, odometer, route index)
             obs = dict(zip(active, observed))
-            leads = sim.leaders(active, lookahead)
-            ahead_on_route.begin_step(active, observed, lengths)
+            leads = ahead.leaders(active, observed)  # the train ahead on the route and the gap to its rear
             rows: list[tuple] = []  # (vid, track, s, speed, accel, edge, lead, gap, controlled)
             prev_pos = []
             for vid, (edge, lane_pos, _v, _a, odo, ridx) in zip(active, observed):  # every route position first: the gap checks read the train ahead's
@@ -309,8 +306,6 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         if prev_s < s_mp <= s_now:
                             frac = (s_mp - prev_s) / max(s_now - prev_s, 1e-9)
                             pass_rows.append((mp_label, vid, t - dt + frac * dt, speed))
-                if lead is None and len(active) > 1:  # beyond SUMO's look-ahead: the train ahead on the route
-                    lead = ahead_on_route.leader(vid, s_now, tr.edges, tr.starts, ridx)
                 gap = lead[1] if lead else math.inf
                 controlled = tr.controlled and driver is not None
                 if driver is not None and not tr.controlled and math.isnan(tr.released_s) and lead is not None:

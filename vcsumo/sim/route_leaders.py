@@ -1,5 +1,9 @@
 """The train ahead beyond SUMO's look-ahead, kept from step to step (:class:`RouteLeaders`, on
-:class:`vcsumo.sim.sumo_backend.SumoBackend`'s route walk and driving distance)."""
+:class:`vcsumo.sim.sumo_backend.SumoBackend`'s route walk and driving distance).
+
+The loop no longer asks this (nor getLeader): :class:`vcsumo.sim.trains_ahead.TrainsAhead` answers
+from vcsumo's own route index.  It stays as the reference the tests compare that index with
+(tests/train_ahead_check.py)."""
 
 from __future__ import annotations
 

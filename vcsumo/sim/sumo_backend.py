@@ -132,6 +132,7 @@ class SumoBackend:
         self._get = tuple(pick(n) for n in ("getRoadID", "getLanePosition", "getSpeed", "getAcceleration", "getDistance", "getRouteIndex"))
         self._get_leader = pick("getLeader")
         self._get_min_gap = pick("getMinGap")
+        self._get_length = pick("getLength")
         self.get_driving_distance = pick("getDrivingDistance")
 
     def close(self) -> None:
@@ -279,6 +280,31 @@ class SumoBackend:
         if end is None:
             end = self._edge_length[edge] = self._ls.lane.getLength(f"{edge}_0")
         return edge, end, length - pos
+
+    @_traci
+    def train_length(self, vid: str) -> float:
+        """The train's length in SUMO (its vType's), m."""
+        return self._get_length(vid)
+
+    @_traci
+    def edge_length(self, edge: str) -> float:
+        """Length of a (single-lane) edge in SUMO's network, m."""
+        end = self._edge_length.get(edge)
+        if end is None:
+            end = self._edge_length[edge] = self._ls.lane.getLength(f"{edge}_0")
+        return end
+
+    @_traci
+    def junction_passage(self, from_edge: str, to_edge: str) -> list[tuple[str, float]]:
+        """The junction's internal lanes a train runs over from ``from_edge`` onto ``to_edge``: (internal
+        edge id, length m) in running order (empty where the edges meet without one)."""
+        lane = self._ls.lane
+        out: list[tuple[str, float]] = []
+        via = next((link[4] for link in lane.getLinks(f"{from_edge}_0") if link[0] == f"{to_edge}_0"), "")
+        while via:
+            out.append((lane.getEdgeID(via), lane.getLength(via)))
+            via = next((link[4] or link[0] for link in lane.getLinks(via) if link[0].startswith(":") or link[4]), "")
+        return out
 
     @_traci
     def route_leader_indexed(self, vid: str, s_m: float, route: list[str], starts_m: list[float], index: int,
