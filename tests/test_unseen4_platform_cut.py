@@ -86,3 +86,37 @@ def test_a_train_longer_than_the_platform_is_still_refused_with_its_true_length(
     err = capsys.readouterr().err
     assert "services[0].origin" in err and "160 m long, longer than the 150 m platform of 'AA'" in err
     assert not (tmp_path / "r").exists()
+
+
+CONVOY_LINE = LINE.replace("km: 3.0, platform_length_m: 150", "km: 3.0, platform_length_m: 400").replace(
+    "to_km: 3.0, permille: 15.0", "to_km: 3.05, permille: 15.0").replace("from_km: 3.0, to_km: 5.0", "from_km: 3.05, to_km: 5.0")
+CONVOY_TT = """
+name: pair
+line: cutplat
+services:
+  - {id: L, train: metro.yaml, origin: AA, destination: ZZ, departure: "07:00", stops: [{station: MM}]}
+  - {id: F, train: metro.yaml, origin: AA, destination: ZZ, departure: "07:00:20", stops: [{station: MM}]}
+convoys:
+  - {id: C, services: [L, F]}
+"""
+
+
+def test_a_convoy_that_fits_the_platform_but_not_the_stop_of_its_last_edge_is_warned(tmp_path):
+    """A 400 m platform cut 50 m past its centre (km 3.05): two 120 m trains 72 m apart fit it (312 m),
+    but SUMO's stop is its last 150 m and the follower's front would stand 192 m short of the
+    platform end: it waits outside until its leader has left, which the warning now says (it said
+    nothing once the platform's length was the line file's)."""
+    import warnings
+
+    from vcsumo.sim.convoy_plan import convoys_from_timetable, warn_short_platforms
+    from vcsumo.timetable import load_timetable, plan_trains
+
+    write(tmp_path / "metro.yaml", METRO)
+    line = load_line(write(tmp_path / "line.yaml", CONVOY_LINE))
+    tt, path = load_timetable(write(tmp_path / "pair.yaml", CONVOY_TT), line)
+    trains = plan_trains(tt, path, line, build_topology(line))
+    convoys = convoys_from_timetable(tt, path, trains)
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        msgs = warn_short_platforms(convoys, {"F": 72.0})
+    assert len(msgs) == 1 and "MM (400 m, cut by a gradient, speed, curve or tunnel change: SUMO's stop is its last 150 m)" in msgs[0]
