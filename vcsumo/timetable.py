@@ -159,10 +159,6 @@ class PlannedStop:
     arrival_s: float | None
     departure_s: float | None
     platform_length_m: float = 0.0
-    stop_window_m: float = 0.0
-    """Length of SUMO's stop (the platform's last edge), m: shorter than the platform where a gradient,
-    speed, curve or tunnel change cuts it; a train is held at its stop only with its front in it
-    (0: the whole platform)."""
 
 
 @dataclass
@@ -334,12 +330,12 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             arr = parse_clock(call.arrival) if call.arrival is not None else None
             dep = parse_clock(call.departure) if call.departure is not None else None
             dwell = call.dwell_s if call.dwell_s is not None else st.dwell_s
-            planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep, plat.length_m, plat.end_pos_m - plat.start_pos_m))
+            planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep, plat.length_m))
         end_s = float(prof.starts_m[-1] + end_pos)
         final = None
         if svc.destination not in topo.endpoints:
             plat = next(p for p in topo.platforms_of(svc.destination) if p.edge == route[-1])
-            final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.length_m, plat.end_pos_m - plat.start_pos_m)
+            final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.length_m)
         platforms = [(f"{f}.stops[{j}].station", s) for j, s in enumerate(planned_stops)] + ([(f"{f}.destination", final)] if final else [])
         first = next((p for p in topo.platforms_of(svc.origin) if p.edge == route[0]), None) if svc.origin not in topo.endpoints else None
         if first is not None:
@@ -393,7 +389,7 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
                 id=tid, service=svc.id, stock=stock, edges=route, profile=prof, depart_s=dep0 + off,
                 depart_pos_m=start_pos, depart_speed_mps=0.0, direction=direction,
                 stops=[PlannedStop(s.platform, s.station, s.s_m, s.dwell_s, None if s.arrival_s is None else s.arrival_s + off,
-                                   None if s.departure_s is None else s.departure_s + off, s.platform_length_m, s.stop_window_m) for s in planned_stops],
+                                   None if s.departure_s is None else s.departure_s + off, s.platform_length_m) for s in planned_stops],
                 final_stop=final, end_pos_m=end_pos, scheduled_arrival_s=None if arr_sched is None else arr_sched + off,
                 start_s_m=start_pos,
             ))

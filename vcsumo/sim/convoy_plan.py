@@ -107,11 +107,12 @@ def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: di
                     continue
                 # SUMO holds a train at its stop only with its front on the platform's last edge: where a change of
                 # gradient, speed, curve or tunnel cuts the platform, that is shorter than the platform
-                cut = 0.0 < x.stop_window_m < min(x.platform_length_m, ahead.stock.length_m + gap) - 1e-6
+                window = float(ego.profile.lengths_m[ego.profile.index_at(x.s_m - 0.01)])  # every platform's start is a node
+                cut = 0.0 < window < min(x.platform_length_m, ahead.stock.length_m + gap) - 1e-6
                 if 0.0 < x.platform_length_m < need - 1e-6 or cut:
                     w = short.setdefault(pair, {"ego": ego, "ahead": ahead, "need": need, "gap": gap, "at": {}, "n": set()})
                     w["at"].setdefault(x.station, f"{x.platform_length_m:g} m, cut by a gradient, speed, curve or tunnel change: SUMO's stop "
-                                                   f"is its last {x.stop_window_m:.0f} m" if cut else f"{x.platform_length_m:g} m")
+                                                   f"is its last {window:.0f} m" if cut else f"{x.platform_length_m:g} m")
                     w["n"].add(ego.id)
     out = []
     for pair, w in short.items():
