@@ -330,16 +330,16 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
             arr = parse_clock(call.arrival) if call.arrival is not None else None
             dep = parse_clock(call.departure) if call.departure is not None else None
             dwell = call.dwell_s if call.dwell_s is not None else st.dwell_s
-            planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep, plat.end_pos_m - plat.start_pos_m))
+            planned_stops.append(PlannedStop(plat.id, call.station, s_stop, dwell, arr, dep, plat.length_m))
         end_s = float(prof.starts_m[-1] + end_pos)
         final = None
         if svc.destination not in topo.endpoints:
             plat = next(p for p in topo.platforms_of(svc.destination) if p.edge == route[-1])
-            final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.end_pos_m - plat.start_pos_m)
+            final = PlannedStop(plat.id, svc.destination, end_s, 0.0, None, None, plat.length_m)
         platforms = [(f"{f}.stops[{j}].station", s) for j, s in enumerate(planned_stops)] + ([(f"{f}.destination", final)] if final else [])
         first = next((p for p in topo.platforms_of(svc.origin) if p.edge == route[0]), None) if svc.origin not in topo.endpoints else None
         if first is not None:
-            platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.end_pos_m - first.start_pos_m)))
+            platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.length_m)))
         for where, stop in platforms:
             if stop.platform_length_m + 1e-6 < stock.length_m:
                 raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of '{stop.station}' (stations of {line.path})")

@@ -267,7 +267,7 @@ def build_topology(line: Line, block_length_m: float | None = None, junctions_km
                 topo.platforms[pid] = Platform(
                     id=pid, station_id=st.id, station_name=st.name, section=sec_id, track=tr.id, edge=eid,
                     start_pos_m=max(0.0, e.length_m - st.platform_length_m), end_pos_m=e.length_m,
-                    dwell_s=st.dwell_s, km_stop=stop_km,
+                    dwell_s=st.dwell_s, km_stop=stop_km, length_m=st.platform_length_m,
                 )
     return topo
 

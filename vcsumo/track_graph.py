@@ -79,6 +79,10 @@ class Platform:
     dwell_s: float
     km_stop: float
     """Section chainage of the train front when stopped, km."""
+    length_m: float = 0.0
+    """The station's platform length, m (the line file's). The SUMO stop (``start_pos_m`` to
+    ``end_pos_m``) lies on the platform's last edge only and is shorter where a gradient, speed,
+    curve or tunnel change cuts the platform into edges; a train stands in the whole platform."""
 
 
 @dataclass

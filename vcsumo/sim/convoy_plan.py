@@ -103,16 +103,23 @@ def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: di
             # study) by their trains, one warning for all such pairs of the same stock
             pair = (ahead.service, ego.service) if ahead.service != ego.service else ("", ahead.stock.name, ego.stock.name, gap)
             for x in ego.stops + ([ego.final_stop] if ego.final_stop else []):
-                if x.platform in ahead_at and 0.0 < x.platform_length_m < need - 1e-6:
+                if x.platform not in ahead_at:
+                    continue
+                # SUMO holds a train at its stop only with its front on the platform's last edge: where a change of
+                # gradient, speed, curve or tunnel cuts the platform, that is shorter than the platform
+                window = float(ego.profile.lengths_m[ego.profile.index_at(x.s_m - 0.01)])  # every platform's start is a node
+                cut = 0.0 < window < min(x.platform_length_m, ahead.stock.length_m + gap) - 1e-6
+                if 0.0 < x.platform_length_m < need - 1e-6 or cut:
                     w = short.setdefault(pair, {"ego": ego, "ahead": ahead, "need": need, "gap": gap, "at": {}, "n": set()})
-                    w["at"].setdefault(x.station, x.platform_length_m)
+                    w["at"].setdefault(x.station, f"{x.platform_length_m:g} m, cut by a gradient, speed, curve or tunnel change: SUMO's stop "
+                                                   f"is its last {window:.0f} m" if cut else f"{x.platform_length_m:g} m")
                     w["n"].add(ego.id)
     out = []
     for pair, w in short.items():
         ego, ahead = w["ego"], w["ahead"]
         by_train = pair[0] == ""
         lead, follow = (ahead.id, ego.id) if by_train else pair
-        at = ", ".join(f"{st} ({length:g} m)" for st, length in w["at"].items())
+        at = ", ".join(f"{st} ({length})" for st, length in w["at"].items())
         n = len(w["n"])
         more = (f" (and {n - 1} more such pair{'s' if n > 2 else ''})" if by_train else f" ({n} runs)") if n > 1 else ""
         out.append(f"convoy {lead}+{follow}{more}: {follow} ({ego.stock.name}, {ego.stock.length_m:g} m) cannot stand "

@@ -314,6 +314,7 @@ class VCDriver:
             coupled = (
                 pst is not None and fr is not None and pst.s_m - f.pred.stock.length_m <= fr.shared_end_a_m and st.s_m <= fr.shared_end_b_m
                 and (pst.s_m + fr.offset_m) - f.pred.stock.length_m > st.s_m  # the predecessor is ahead
+                and (st.leader in (None, f.pred.id) or st.gap_m >= (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m - 1.0)  # no train between (else SUMO drives it)
             )
             # station stops are SUMO's (see module doc)
             while f.next_stop < len(f.stops_m) and st.s_m > f.stops_m[f.next_stop] + 1.0:

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+import warnings
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -133,9 +134,14 @@ def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: lis
     d_sha = config_digest(delays)
     l_sha = line.source_digest()
     specs = []
+    no_convoys: list[Path] = []  # the vc regime runs a timetable's convoys: without any it is not run there
     for tt in timetables:
         t_sha = file_digest(tt)
+        if "vc" in regimes and not _has_convoys(tt):
+            no_convoys.append(tt)
         for regime in regimes:
+            if regime == "vc" and no_convoys and no_convoys[-1] == tt:
+                continue
             for ctrl in (controllers or [DEFAULT_CONTROLLER]) if regime == "vc" else [""]:
                 for seed in seeds:
                     key = run_key(t_sha, regime, ctrl, seed, d_sha, l_sha, step_length_s, block_length_m)
@@ -146,7 +152,24 @@ def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: lis
                         delay_config_sha256=d_sha, step_length_s=step_length_s, run_dir=str((out / "runs" / name).resolve()), key=key,
                         line=line.name, command=command,
                     ))
+    if no_convoys:
+        names = ", ".join(p.name for p in no_convoys)
+        if not specs:
+            raise InputError(no_convoys[0], "convoys", f"the vc regime needs at least one convoy in the timetable, and no timetable of the batch has one ({names})")
+        warnings.warn(f"vc is not run for {names}: no convoys in the timetable (the vc regime couples a timetable's convoys; "
+                      f"declare them with convoys: [{{id, services: [leader, follower]}}])", stacklevel=2)
     return specs
+
+
+def _has_convoys(path: Path) -> bool:
+    """Whether a timetable file declares convoys (a file that cannot be read: True, its runs give the error)."""
+    from vcsumo.config import load_model
+    from vcsumo.timetable import TimetableFile
+
+    try:
+        return bool(load_model(TimetableFile, path).convoys)
+    except InputError:
+        return True
 
 
 # ---------------------------------------------------------------------------------------------

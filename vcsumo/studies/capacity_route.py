@@ -65,7 +65,7 @@ def intermediate_stops(line: Line, net: BuiltNetwork, direction: str, full: Rout
             continue
         s_stop = float(full.starts_m[full.edges.index(p.edge)] + p.end_pos_m)
         if s_stop > release_s + 1.0:
-            out.append((p.station_id, pid, s_stop, p.dwell_s, p.end_pos_m - p.start_pos_m))
+            out.append((p.station_id, pid, s_stop, p.dwell_s, p.length_m))
     return sorted(out, key=lambda x: x[2])
 
 

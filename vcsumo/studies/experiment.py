@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from vcsumo.control.channel import Channel
@@ -63,11 +64,35 @@ class RunResult:
 
     @property
     def healthy(self) -> bool:
-        """No collision and, where a CBF reports it, the true barrier never positive."""
+        """No collision, where a CBF reports it the true barrier never positive, and no train above the
+        track's permitted speed by more than the run-health tolerance (``OVERSPEED_TOLERANCE_KMH``)."""
         m = self.measurements
         coll = m[m.quantity == "collisions"].value.sum()
         tb = m[m.quantity == "true_barrier_max_m"].value
-        return bool(coll == 0 and not (tb > 0).any())
+        over = m[m.quantity == "overspeed_max_kmh"].value
+        return bool(coll == 0 and not (tb > 0).any() and not (over > OVERSPEED_TOLERANCE_KMH).any())
+
+    def overspeeding(self) -> list[str]:
+        """The trains above the permitted speed by more than the tolerance, with their largest excess."""
+        m = self.measurements
+        over = m[(m.quantity == "overspeed_max_kmh") & (m.value > OVERSPEED_TOLERANCE_KMH)]
+        return [f"{r.train} +{r.value:.1f} km/h" for r in over.itertuples()]
+
+
+OVERSPEED_TOLERANCE_KMH = 2.0
+"""A train counts as above its permitted speed beyond this, km/h (the run-health monitor's ``speed_tolerance_kmh``)."""
+
+
+def overspeed_rows(profile: RouteProfile, pos: np.ndarray, speed: np.ndarray, ids: list[str], lengths_m: list[float]) -> list[tuple[str, str, str, float, str]]:
+    """Per train, the largest excess over the track's permitted speed (the lowest limit under the whole
+    train, as SUMO and the run-health monitor read it), km/h, and the steps above it + the tolerance."""
+    rows = []
+    for i, tid in enumerate(ids):
+        limit = np.array([profile.speed_limit_train(float(x), lengths_m[i]) for x in pos[:, i]])
+        excess = (speed[:, i] - limit) * 3.6
+        rows.append((tid, "", "overspeed_max_kmh", float(max(excess.max(), 0.0)), "km/h"))
+        rows.append((tid, "", "overspeed_steps", float(np.sum(excess > OVERSPEED_TOLERANCE_KMH)), "-"))
+    return rows
 
 
 def _at_rest_stop(step_s: float, settle_s: float):
@@ -109,6 +134,7 @@ def run_experiment(exp: Experiment, seed: int, base_dir: Path | None = None, pat
     arr = rec.arrays()
     brake = setup.leader_driver.braking_since_s if isinstance(setup.leader_driver, LeaderEvents) else None
     rows = measure(exp, arr, ids, true_lengths, setup.followers, timers, brake, rec.packets, channel if exp.channel is not None else None)
+    rows += overspeed_rows(setup.profile, arr["pos"], arr["speed"], ids, true_lengths)
     rows += [("", "", "steps", float(len(arr["t"])), "-"), ("", "", "end_time_s", run.end_time_s, "s"), ("", "", "wall_time_s", wall, "s"),
              ("", "", "cpu_time_s", cpu, "s")]
     name = f"{variant}-seed{seed}"
