@@ -32,13 +32,13 @@ def test_a_run_cut_short_counts_the_stops_ahead_as_not_reached(in_tmp, capsys):
     assert trains["stops_skipped"].sum() == 0
     out = capsys.readouterr().out
     assert "1 of 3 trains arrived and 2 stops not reached (not skipped)" in out.replace("\n", " ")
-    assert "health: NOT healthy — trains arrived 1/3, stops served 1/3 (skipped 0)" in out.replace("\n", " ")
+    assert "health: NOT healthy — trains arrived 1/3, stops served 1/3 (skipped 0, short dwell 0)" in out.replace("\n", " ")
     # the same run to the end: every train arrives, every stop served, healthy
     assert main(["run", "--line", "felez_test", "--timetable", "test", "--regime", "fbs", "--out", "full"]) == 0
     full = json.loads((in_tmp / "full" / "summary.json").read_text())
     assert (full["stops_served"], full["stops_skipped"], full["stops_not_reached"], full["healthy"]) == (3, 0, 0, True)
     line = " ".join(capsys.readouterr().out.split())  # the terminal's health line names every counter the verdict rests on
-    assert re.search(r"health: healthy — trains arrived 3/3, stops served 3/3 \(skipped 0\), min margin to the safe separation [0-9.]+ m, "
+    assert re.search(r"health: healthy — trains arrived 3/3, stops served 3/3 \(skipped 0, short dwell 0\), min margin to the safe separation [0-9.]+ m, "
                      r"min gap [0-9.]+ m, gap violations 0, collisions 0, overspeed 0, braking beyond service 0, authority overruns 0, "
                      r"SUMO emergency brakings 0", line), line
 

@@ -87,7 +87,7 @@ def test_a_follower_waiting_in_a_platform_too_short_for_its_convoy_serves_its_st
     code = main(["run", "--line", str(line), "--timetable", str(tt), "--regime", "vc", "--controller", "mpc", "--out", str(out)])
     cap = capsys.readouterr()
     assert code == 0, cap.err
-    assert "stops served 6/6 (skipped 0)" in cap.out
+    assert "stops served 6/6 (skipped 0, short dwell 0)" in cap.out
     ev = pd.read_csv(out / "stop_events.csv")
     served = set(zip(ev.train, ev.station))
     assert {("D1", "STP"), ("D2", "STP"), ("D1", "MID"), ("D2", "MID")} <= served

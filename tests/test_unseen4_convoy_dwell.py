@@ -11,6 +11,8 @@ Not fixed here: the convoy can leave together with every member's dwell served o
 is the loop's (``vcsumo/sim/loop.py``, being rewritten); ``vc_driver`` would then release a follower
 once its own dwell is served."""
 
+import math
+
 import pandas as pd
 import pytest
 
@@ -44,8 +46,6 @@ convoys:
 """
 
 
-@pytest.mark.xfail(strict=True, reason="a follower leaves a shared platform with its leader before its own dwell is served; "
-                   "the fix holds the leader's SUMO stop in vcsumo/sim/loop.py (being rewritten by the lead)")
 def test_a_follower_serves_its_whole_dwell_and_the_convoy_leaves_together(tmp_path, monkeypatch, capsys):
     write(tmp_path / "metro.yaml", METRO)
     write(tmp_path / "tt.yaml", TT)
@@ -56,3 +56,38 @@ def test_a_follower_serves_its_whole_dwell_and_the_convoy_leaves_together(tmp_pa
     assert ev.loc[("F", "MM"), "arrival_s"] > ev.loc[("L", "MM"), "arrival_s"] + 5.0  # it stood behind its leader
     assert ev.loc[("F", "MM"), "dwell_s"] >= 30.0 - 0.5  # its own minimum dwell
     assert abs(ev.loc[("F", "MM"), "departure_s"] - ev.loc[("L", "MM"), "departure_s"]) <= 2.0  # and the convoy left together
+
+
+def test_a_stop_left_before_its_minimum_dwell_makes_the_run_unhealthy(tmp_path, monkeypatch, line_factory, network_factory):
+    """The health counts every stop a train left before its own minimum dwell (``short_dwells``): a
+    train made to leave its first stop 5 s after it stopped (SUMO's stop ended by ``resume``) is
+    counted, named in summary.csv, and the run is not healthy; left alone the same run is healthy."""
+    from vcsumo.sim import sumo_backend
+    from vcsumo.sim.loop import Scenario, simulate
+    from vcsumo.timetable import load_timetable, plan_trains
+
+    line = line_factory("regional_graded")
+    tt, path = load_timetable("all_stations", line)
+    trains = plan_trains(tt, path, line, network_factory("regional_graded").topology)[:1]
+    clean = simulate(Scenario(line, network_factory("regional_graded"), trains, "fbs", full_outputs=False), tmp_path / "clean")
+    assert clean.summary["short_dwells"] == 0 and clean.summary["healthy"]
+
+    step = sumo_backend.SumoBackend.step
+    stood: dict[str, float] = {}
+
+    def hurried(self):
+        t = step(self)
+        for vid in self.running():
+            if self.at_stop(vid) and vid not in stood:
+                stood[vid] = t
+            elif stood.get(vid, math.inf) <= t - 5.0 and self.at_stop(vid):
+                self.resume(vid)  # the first stop only
+                stood[vid] = math.inf
+        return t
+
+    monkeypatch.setattr(sumo_backend.SumoBackend, "step", hurried)
+    res = simulate(Scenario(line, network_factory("regional_graded"), trains, "fbs", full_outputs=False), tmp_path / "hurried")
+    ev = pd.read_csv(tmp_path / "hurried" / "stop_events.csv")
+    assert ev.dwell_s.iloc[0] < 6.0 < trains[0].stops[0].dwell_s
+    assert res.summary["short_dwells"] == 1 and not res.summary["healthy"]
+    assert pd.read_csv(tmp_path / "hurried" / "summary.csv").set_index("train").loc[trains[0].id, "short_dwells"] == 1

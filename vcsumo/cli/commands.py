@@ -53,7 +53,7 @@ def build_network_cmd(cfg: BuildNetworkConfig) -> None:
 
 
 # ----------------------------------------------------------------------------------------------
-UNHEALTHY = [("stops_skipped", "scheduled stops skipped"), ("collisions", "collisions"), ("gap_violations", "gap violations"),
+UNHEALTHY = [("stops_skipped", "scheduled stops skipped"), ("short_dwells", "stops left before the minimum dwell"), ("collisions", "collisions"), ("gap_violations", "gap violations"),
              ("overspeed_events", "overspeed events"), ("authority_overruns", "movement authority overruns"),
              ("beyond_service_brakings", "brakings beyond the service rate"), ("sumo_emergency_stops", "SUMO emergency stops"),
              ("sumo_emergency_brakings", "SUMO emergency brakings"), ("sumo_stop_warnings", "SUMO stop warnings"), ("teleports", "teleports")]
@@ -81,7 +81,7 @@ def health_line(summary: dict, reasons: list[str]) -> str:
         return f"{x:.1f} m" if isinstance(x, (int, float)) and math.isfinite(x) else "– (no train ran behind another)"
     verdict = "healthy" if s.get("healthy") and not reasons else "NOT healthy"
     return (f"health: {verdict} — trains arrived {s.get('trains_arrived')}/{s.get('trains')}, stops served {s.get('stops_served', 0)}/"
-            f"{s.get('stops_scheduled', 0)} (skipped {s.get('stops_skipped', 0)}), min margin to the safe separation {metres(margin)}, "
+            f"{s.get('stops_scheduled', 0)} (skipped {s.get('stops_skipped', 0)}, short dwell {s.get('short_dwells', 0)}), min margin to the safe separation {metres(margin)}, "
             f"min gap {metres(gap)}, gap violations {s.get('gap_violations', 0)}, collisions {s.get('collisions', 0)}, "
             f"overspeed {s.get('overspeed_events', 0)}, braking beyond service {s.get('beyond_service_brakings', 0)}, "
             f"authority overruns {s.get('authority_overruns', 0)}, SUMO emergency brakings {s.get('emergency_brakes', 0)}")

@@ -5,6 +5,7 @@ aligned (a convoy leaves a station together).  :class:`vcsumo.sim.vc_driver.VCDr
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 import warnings
 from pathlib import Path
 
@@ -170,3 +171,53 @@ def follower_stops(ego: PlannedTrain, pred: PlannedTrain, offset_m: float | None
         plats.append(0.0)
         stands.append(None)
     return stops, plats, stands
+
+
+def follower_dwells(ego: PlannedTrain, n_stops: int) -> list[float | None]:
+    """A convoy follower's own minimum dwell at each of its stops (:func:`follower_stops`' order; None
+    where it ends its run: nobody waits for it there), s."""
+    return ([x.dwell_s for x in ego.stops] + [None] * n_stops)[:n_stops]
+
+
+def convoy_stop_holds(waiting: list[tuple[str, str, int, float]], now_s: float, step_s: float) -> dict[str, float]:
+    """How long each train must stay at a platform its convoy shares: train -> the earliest time its
+    stop may end, s.  ``waiting``: the followers standing (or stopping) behind their predecessor in a
+    shared platform, as (follower, predecessor, place in the convoy, when the follower's own minimum
+    dwell is served — nan while it has not come to a stand: held a step at a time).  A predecessor
+    waits for every follower behind it, and for what they wait for (the convoy leaves together, and
+    every member serves its dwell)."""
+    need: dict[str, float] = {}
+    for fid, pred, _, ready in sorted(waiting, key=lambda w: -w[2]):  # from the tail of the convoy
+        until = max(ready if ready == ready else now_s + 2.0 * step_s, need.get(fid, -math.inf))
+        need[pred] = max(need.get(pred, -math.inf), until)
+    return need
+
+
+# -------------------------------------------------------------------------------------------
+# Route frames
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Maps positions of train ``a`` into the route frame of train ``b`` through their shared track."""
+
+    offset_m: float
+    """pos_b = pos_a + offset."""
+    shared_end_a_m: float
+    """End of the shared stretch in a's frame (after it the routes part)."""
+    shared_end_b_m: float
+
+
+def frame(a: PlannedTrain, b: PlannedTrain) -> Frame | None:
+    pos_b = {e: i for i, e in enumerate(b.edges)}
+    first = next((i for i, e in enumerate(a.edges) if e in pos_b), None)
+    if first is None:
+        return None
+    j = pos_b[a.edges[first]]
+    i = first
+    while i + 1 < len(a.edges) and j + 1 < len(b.edges) and a.edges[i + 1] == b.edges[j + 1]:
+        i += 1
+        j += 1
+    pa, pb = a.profile, b.profile
+    offset = float(pb.starts_m[pos_b[a.edges[first]]] - pa.starts_m[first])
+    return Frame(offset, float(pa.starts_m[i] + pa.lengths_m[i]), float(pb.starts_m[j] + pb.lengths_m[j]))

@@ -228,6 +228,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     if driver is not None and scn.full_outputs and hasattr(driver, "stream_records"):
         driver.stream_records(out)  # the driver's per-step records go to disk as the run goes
     stop_releases = getattr(driver, "stop_releases", lambda: ())  # a driver that never ends a stop need not say so
+    stop_holds = getattr(driver, "stop_holds", dict)  # nor one that never holds a train at its stop
     authority_caps = 0
     touching_before: set[tuple[str, str]] = set()
     emergency_before: set[str] = set()
@@ -435,6 +436,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                             ends[r[0]] = d_ma
                 commands = driver.make_step(Snapshot(t, dt, snap, ends))
                 timing["controller_s"] += time.perf_counter() - t0
+                for vid, until in stop_holds().items():  # a follower behind it in the platform has not served its dwell
+                    if vid in state and sim.at_stop(vid):
+                        sim.hold_stop(vid, until)
                 for vid in stop_releases():
                     sim.resume(vid)
                     if vid in held:  # off its stop now: its curve holds from this step (SUMO would start it at full acceleration)

@@ -19,6 +19,9 @@ from vcsumo.sim.sumo_io import read_sumo_log
 TRAJECTORY_COLUMNS = ["time_s", "train", "section", "km", "s_m", "speed_mps", "accel_mps2", "gap_m", "leader", "edge"]
 """Columns of trajectories.csv (one row per running train and record period)."""
 TRAJECTORY_FLOATS = ["time_s", "km", "s_m", "speed_mps", "accel_mps2", "gap_m"]
+DWELL_TOLERANCE_S = 0.5
+"""A stop ended more than this before the train's own minimum dwell was served is a short dwell, s
+(SUMO ends a stop at a step: up to one step early against the minimum)."""
 STOP_PASSED_M = 10.0
 """A front more than this beyond a stop's position has passed the stop (an unserved stop it passed is
 skipped; one still ahead of a train that had not arrived when the run ended was not reached), m."""
@@ -101,6 +104,13 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
     trip = {r["id"]: r for r in parse_xml_rows(out / "tripinfo.xml", "tripinfo")}
     scheduled = {t.id: list(t.stops) + ([t.final_stop] if t.final_stop is not None else []) for t in scn.trains}
     served = stops.groupby(["train", "platform"]).size().to_dict() if len(stops) else {}
+    # a stop (not the last) that ended before the train's own minimum dwell was served: its passengers were not
+    dwell_min = {(t.id, s.platform): s.dwell_s for t in scn.trains for s in t.stops}
+    short: dict[str, int] = {}
+    for r in stop_rows:
+        need = dwell_min.get((r["train"], r["platform"]))
+        if need is not None and r["dwell_s"] < need - DWELL_TOLERANCE_S:
+            short[r["train"]] = short.get(r["train"], 0) + 1
     warnings = read_sumo_log(out / "sumo_errors.log")
     braking = health.judge_sumo_emergency_brakings(warnings, scn.step_length_s)  # each SUMO emergency braking: real or grade-assisted
     rows = []
@@ -124,6 +134,7 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
             "time_loss_s": float(ti["timeLoss"]) if ti else math.nan,
             "min_gap_m": (tr.min_gap if tr and not math.isinf(tr.min_gap) else None),
             **stop_counts(scheduled[t.id], lambda pl, tid=t.id: served.get((tid, pl), 0) > 0, bool(ti) and not math.isnan(arrival), tr.s if tr else math.nan),
+            "short_dwells": short.get(t.id, 0),
             **health.train_row(t.id),
             "gap_violations": health.trains[t.id].separation_violations,
             "emergency_brakes": tr.emergencies if tr else 0,
@@ -142,6 +153,7 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         "collisions": len(collisions), "max_impact_kmh": float(trains_df["max_impact_kmh"].max()) if len(trains_df) else 0.0,
         "stops_scheduled": int(trains_df["stops_scheduled"].sum()), "stops_served": int(trains_df["stops_served"].sum()),
         "stops_skipped": int(trains_df["stops_skipped"].sum()), "stops_not_reached": int(trains_df["stops_not_reached"].sum()),
+        "short_dwells": int(trains_df["short_dwells"].sum()),
         "overspeed_events": int(trains_df["overspeed_events"].sum()), "overspeed_max_kmh": float(trains_df["overspeed_max_kmh"].max()) if len(trains_df) else 0.0,
         "beyond_service_brakings": int(trains_df["beyond_service_brakings"].sum()),
         "max_decel_mps2": float(trains_df["max_decel_mps2"].max()) if len(trains_df) else 0.0,
@@ -153,7 +165,7 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         "simulated_until_s": sim_end, **(extra or {}),
     }
     summary["healthy"] = bool(
-        summary["trains_arrived"] == summary["trains"] and summary["stops_skipped"] == 0 and summary["overspeed_events"] == 0
+        summary["trains_arrived"] == summary["trains"] and summary["stops_skipped"] == 0 and summary["short_dwells"] == 0 and summary["overspeed_events"] == 0
         and summary["beyond_service_brakings"] == 0 and summary["authority_overruns"] == 0 and summary["sumo_emergency_stops"] == 0
         and summary["collisions"] == 0 and summary["gap_violations"] == 0 and summary["teleports"] == 0 and summary["sumo_stop_warnings"] == 0
         and summary["sumo_emergency_brakings"] == 0

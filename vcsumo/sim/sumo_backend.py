@@ -402,6 +402,15 @@ class SumoBackend:
             self._ls.vehicle.resume(vid)
 
     @_traci
+    def hold_stop(self, vid: str, until_s: float) -> None:
+        """The train's present stop does not end before ``until_s`` (its remaining duration — what
+        SUMO's stop reports and takes as ``duration`` — lengthened; never shortened)."""
+        stops = self._ls.vehicle.getStops(vid, 1)
+        rest = until_s - self._ls.simulation.getTime()
+        if stops and stops[0].arrival >= 0.0 and rest > stops[0].duration + 1e-6:
+            self._ls.vehicle.setStopParameter(vid, 0, "duration", f"{rest:.3f}")
+
+    @_traci
     def add_constraint(self, signal: str, train: str, foe_signal: str, foe: str) -> None:
         """Rail-signal constraint: ``train`` may pass ``signal`` only after ``foe`` passed ``foe_signal``."""
         self._ls.trafficlight.addConstraint(signal, train, foe_signal, foe, 0, 1)

@@ -66,42 +66,13 @@ from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
 from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
-from vcsumo.sim.convoy_plan import (MIN_CONVOY_DWELL_S, align_convoy_stops, arrange_convoy_departures, convoys_from_timetable, follower_stops, load_channel,
+from vcsumo.sim.convoy_plan import (MIN_CONVOY_DWELL_S, Frame, align_convoy_stops, arrange_convoy_departures, convoy_stop_holds, convoys_from_timetable,
+                                    follower_dwells, follower_stops, frame, load_channel,
                                      warn_short_platforms)
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
 from vcsumo.sim.records import VC_RECORD_COLUMNS, VC_RECORD_FLOATS, CsvStream, RunningStats
 from vcsumo.timetable import PlannedTrain, TimetableFile
-
-# -------------------------------------------------------------------------------------------
-# Route frames
-
-
-@dataclass(frozen=True)
-class Frame:
-    """Maps positions of train ``a`` into the route frame of train ``b`` through their shared track."""
-
-    offset_m: float
-    """pos_b = pos_a + offset."""
-    shared_end_a_m: float
-    """End of the shared stretch in a's frame (after it the routes part)."""
-    shared_end_b_m: float
-
-
-def frame(a: PlannedTrain, b: PlannedTrain) -> Frame | None:
-    pos_b = {e: i for i, e in enumerate(b.edges)}
-    first = next((i for i, e in enumerate(a.edges) if e in pos_b), None)
-    if first is None:
-        return None
-    j = pos_b[a.edges[first]]
-    i = first
-    while i + 1 < len(a.edges) and j + 1 < len(b.edges) and a.edges[i + 1] == b.edges[j + 1]:
-        i += 1
-        j += 1
-    pa, pb = a.profile, b.profile
-    offset = float(pb.starts_m[pos_b[a.edges[first]]] - pa.starts_m[first])
-    return Frame(offset, float(pa.starts_m[i] + pa.lengths_m[i]), float(pb.starts_m[j] + pb.lengths_m[j]))
-
 
 # -------------------------------------------------------------------------------------------
 # The convoy leader's plan
@@ -147,6 +118,8 @@ class _Follower:
     released_at_s: float = math.nan
     stops_m: list[float] = field(default_factory=list)
     platforms_m: list[float] = field(default_factory=list)
+    dwells_s: list[float | None] = field(default_factory=list)
+    """Per stop: its own minimum dwell (None where its run ends), s."""
     pred_stands_m: list[float | None] = field(default_factory=list)
     """Per stop: where the predecessor's front will stand when it stops in the same platform (this
     follower's route frame; None: it does not stop there), m."""
@@ -220,7 +193,8 @@ class VCDriver:
                             frames[other.id] = f
                 stops, plats, stands = follower_stops(ego, pred, frames[pred.id].offset_m if pred.id in frames else None)
                 self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params(),
-                                                   braking=RouteBraking(self.model, ego.stock, ego.profile), pred_stands_m=stands)
+                                                   braking=RouteBraking(self.model, ego.stock, ego.profile), pred_stands_m=stands,
+                                                   dwells_s=follower_dwells(ego, len(stops)))
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
         standstill = {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}
@@ -228,6 +202,8 @@ class VCDriver:
         warn_short_platforms(convoys, standstill)
         self.aligned_stops = align_convoy_stops(convoys)
         self.releases: set[str] = set()
+        self.holds: dict[str, float] = {}
+        """Trains a follower standing behind them in a shared platform holds there: train -> until, s."""
 
     # -----------------------------------------------------------------------------------
     def _send(self, snap: Snapshot) -> None:
@@ -284,6 +260,11 @@ class VCDriver:
         out, self.releases = self.releases, set()
         return out
 
+    def stop_holds(self) -> dict[str, float]:
+        """Trains whose stop must not end before a time (a follower behind them in the platform has not
+        served its own dwell): train -> time, s (:func:`~vcsumo.sim.convoy_plan.convoy_stop_holds`)."""
+        return self.holds
+
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
         whole, snap = snap, (self.junction.visible(snap) if self.junction is not None else snap)
@@ -295,6 +276,7 @@ class VCDriver:
             self._next_record = t + self.record_every_s
         self.channel.advance(t)  # what is due arrives whether or not its receiver runs
         trains = snap.trains
+        waiting: list[tuple[str, str, int, float]] = []  # followers standing or stopping behind their predecessor in a platform
         for fid, f in self.followers.items():
             if fid not in trains:
                 continue
@@ -320,6 +302,7 @@ class VCDriver:
             while f.next_stop < len(f.stops_m) and st.s_m > f.stops_m[f.next_stop] + 1.0:
                 f.next_stop += 1
                 f.at_stop = False
+                f.stood_since_s = math.nan
             stop_target = None  # where SUMO will stop this follower, when its stop is near
             if coupled and f.next_stop < len(f.stops_m):
                 v = st.speed_mps
@@ -348,15 +331,18 @@ class VCDriver:
                         f.stop_handovers += 1
                     f.at_stop = True
                     coupled = False
-                # the convoy leaves a shared platform together: once the follower stands at its stop
-                # behind its predecessor and the predecessor moves off, the follower's dwell ends too
-                if f.at_stop and in_platform and v < 0.01:
-                    if math.isnan(f.stood_since_s):
+                # the convoy leaves a shared platform together, every member once its own dwell is served: the
+                # predecessor is held at its stop until then (stop_holds), and the follower's stop ends as it moves off
+                # (its dwell counts from its first stand at the stop: SUMO may close it up behind its predecessor after)
+                dwell = f.dwells_s[f.next_stop]
+                if f.at_stop and in_platform and dwell is not None:
+                    if math.isnan(f.stood_since_s) and v < 0.01:
                         f.stood_since_s = t
-                    elif t - f.stood_since_s >= MIN_CONVOY_DWELL_S and pst.speed_mps > 0.1:
+                    elif t - f.stood_since_s >= max(MIN_CONVOY_DWELL_S, dwell) and pst.speed_mps > 0.1 and fid not in self.holds:
                         self.releases.add(fid)
-                        f.stood_since_s = math.nan
-                else:
+                    if fid not in self.releases:
+                        waiting.append((fid, f.pred.id, f.convoy.index(fid), f.stood_since_s + dwell))
+                elif v >= 0.01:
                     f.stood_since_s = math.nan
             if not coupled:
                 if f.coupled:
@@ -420,6 +406,7 @@ class VCDriver:
                     sensed_gap, gap_comm, cmd.force_n, cmd.mode, cmd.emergency, cmd.infeasible,
                     cmd.info.get("cbf_true_barrier_m"), cmd.info.get("cbf_robust_barrier_m"), v_nominal, v_guard, v_next,
                 ))
+        self.holds = convoy_stop_holds(waiting, t, self.step_s)
         if self.junction is not None:
             commands = self.junction.limit(whole, commands, self.channel.latest, self.coupled_spacing_m)
         return commands

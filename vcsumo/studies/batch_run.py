@@ -48,7 +48,7 @@ BATCH_COLUMNS = [
     "punctuality_3min_share", "punctuality_5min_share", "mean_arrival_delay_s", "max_arrival_delay_s",
     "primary_delay_s", "knock_on_delay_s", "capacity_consumption_pct", "capacity_consumption_cyclic_pct",
     "min_gap_m", "gap_violations", "collisions", "emergency_brakes",
-    "healthy", "min_margin_m", "stops_skipped", "overspeed_events", "beyond_service_brakings", "authority_overruns", "wall_time_s",
+    "healthy", "min_margin_m", "stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns", "wall_time_s",
     "line", "timetable_sha256", "delay_config_sha256", "run_key", "run_dir",
 ]
 TRAIN_COLUMNS = [
@@ -215,7 +215,7 @@ def _metrics(spec: RunSpec, planned, delays, ref: dict[str, float], res) -> tupl
         gap_violations=int(s["gap_violations"]), collisions=int(s["collisions"]), emergency_brakes=int(s["emergency_brakes"]),
         # the run's health (vcsumo.sim.health): a run that is not healthy is never a clean row
         healthy=bool(s["healthy"]), min_margin_m=s["min_margin_m"] if s.get("min_margin_m") is not None else math.nan,
-        stops_skipped=int(s["stops_skipped"]), overspeed_events=int(s["overspeed_events"]),
+        stops_skipped=int(s["stops_skipped"]), short_dwells=int(s.get("short_dwells", 0)), overspeed_events=int(s["overspeed_events"]),
         beyond_service_brakings=int(s["beyond_service_brakings"]), authority_overruns=int(s["authority_overruns"]),
     )
     return row, train_rows
