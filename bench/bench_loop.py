@@ -8,9 +8,10 @@ For each scenario the bench runs, in fresh child processes and one after the oth
    supervision, health, driver — channel, controllers, records —, recording, I/O), peak memory;
 2. **bare** — a plain libsumo loop started from the ``scenario.sumocfg`` the vcsumo run wrote (so
    the same network, routes, step, end and SUMO outputs) that reads, for every running train at
-   every step, the values vcsumo reads (road, lane position, speed, acceleration, odometer, route
-   index and the train ahead within 30 km) with the same getters (libsumo's extension functions),
-   and does nothing else;
+   every step, the values vcsumo knows of it (road, lane position, speed, acceleration, odometer,
+   route index with libsumo's extension getters, as vcsumo reads them, and the train ahead within
+   30 km with the gap to its rear — SUMO's ``getLeader``; vcsumo finds the same from its own route
+   index, :class:`vcsumo.sim.trains_ahead.TrainsAhead`, without a call into SUMO), and does nothing else;
 3. **sumo** — the same libsumo loop reading nothing (SUMO's own cost, for reference).
 
 It prints CPU seconds, CPU per simulated hour, CPU per 1,000 train-steps by part, the real-time
