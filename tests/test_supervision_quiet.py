@@ -187,3 +187,17 @@ def test_approach_locking_skips_nothing_it_would_do(tmp_path, monkeypatch, regim
     full = _locking_events(tmp_path / "b", monkeypatch, net, trains, regime, look_every_step=True)
     assert len(full) > 1000 and len({ev[3] for ev in full}) > 10  # trains locked and cleared the junctions
     assert fast == full
+
+
+def test_virtual_coupling_convoys_on_the_regional_line(tmp_path, checked, line_factory, network_factory):
+    """Under vc the supervision drives the convoy leaders and every follower SUMO drives (stops,
+    released followers): the same check, with the convoys' trains ahead."""
+    from vcsumo.sim.loop import Scenario, simulate
+    from vcsumo.sim.vc_driver import make_vc_driver
+
+    line = line_factory("regional_graded")
+    tt, path = load_timetable("convoy", line)
+    trains = plan_trains(tt, path, line, network_factory("regional_graded").topology, dt=0.1)
+    driver = make_vc_driver(tt, path, trains, "cbc", 0.1, 42)
+    simulate(Scenario(line, network_factory("regional_graded"), trains, "vc", step_length_s=0.1, driver=driver, full_outputs=False), tmp_path / "out")
+    _assert_exercised(checked, min_quiet=10000)
