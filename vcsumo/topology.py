@@ -101,15 +101,20 @@ def _signal_positions(sec: _Section, mandatory: set[float]) -> set[float]:
         markers = [sec.c0 + i * step for i in range(1, n + 1) if sec.c0 + i * step < sec.c1 - 1e-9]
     else:
         markers = []
-    platforms = [(st.km - st.platform_length_m / 2000.0, st.km + st.platform_length_m / 2000.0) for st in sec.stations]
     keep = set()
+    dropped = []
     min_km = sec.min_block_m / 1000.0
     for c in markers:
-        if any(lo - 1e-9 <= c <= hi + 1e-9 for lo, hi in platforms):
+        st = next((x for x in sec.stations if x.km - x.platform_length_m / 2000.0 - 1e-9 <= c <= x.km + x.platform_length_m / 2000.0 + 1e-9), None)
+        if st is not None:
+            dropped.append(f"{c:g} km in the platform of {st.id}")
             continue
         if any(abs(c - m) < min_km for m in mandatory):
+            dropped.append(f"{c:g} km within {sec.min_block_m:g} m of a station or junction signal")
             continue
         keep.add(_round_km(c))
+    if sec.signals_km and dropped:  # (regular markers falling there are expected to go; the user's own are said)
+        warnings.warn(f"section '{sec.id}': signalling.signals_km: {len(dropped)} of the signals given are not built ({'; '.join(dropped)})", stacklevel=2)
     return keep
 
 
