@@ -91,3 +91,20 @@ def test_a_stop_left_before_its_minimum_dwell_makes_the_run_unhealthy(tmp_path, 
     assert ev.dwell_s.iloc[0] < 6.0 < trains[0].stops[0].dwell_s
     assert res.summary["short_dwells"] == 1 and not res.summary["healthy"]
     assert pd.read_csv(tmp_path / "hurried" / "summary.csv").set_index("train").loc[trains[0].id, "short_dwells"] == 1
+
+
+def test_a_leader_is_not_held_for_a_follower_waiting_outside_a_short_platform(tmp_path, monkeypatch, capsys):
+    """Where the platform cannot hold the pair (250 m for 120 + 72 + 120 m), the follower waits outside
+    until its leader has left and serves its stop on its own: the leader keeps its own dwell (no hold),
+    the follower its whole dwell, both healthy."""
+    write(tmp_path / "metro.yaml", METRO)
+    write(tmp_path / "tt.yaml", TT)
+    line = write(tmp_path / "line.yaml", LINE.replace("km: 4.0, platform_length_m: 400", "km: 4.0, platform_length_m: 250"))
+    monkeypatch.chdir(tmp_path)
+    rc = main(["run", "--line", str(line), "--timetable", "tt.yaml", "--regime", "vc", "--controller", "cbc", "--out", "r"])
+    err = capsys.readouterr().err
+    assert rc == 0 and "cannot stand behind L" in err, err
+    ev = pd.read_csv(tmp_path / "r" / "stop_events.csv").set_index(["train", "station"])
+    assert ev.loc[("L", "MM"), "dwell_s"] <= 30.0 + 1.0  # its own dwell: nobody waits in the platform behind it
+    assert ev.loc[("F", "MM"), "arrival_s"] >= ev.loc[("L", "MM"), "departure_s"]  # the follower came in once it had left
+    assert ev.loc[("F", "MM"), "dwell_s"] >= 30.0 - 0.5

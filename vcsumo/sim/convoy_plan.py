@@ -88,6 +88,23 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
             ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
 
 
+def stop_window_m(ego: PlannedTrain, stop) -> float:
+    """How much of a stop's platform SUMO counts as the stop: it holds a train there only with its
+    front on the platform's last edge, which a change of gradient, speed, curve or tunnel inside the
+    platform makes shorter than the platform, m."""
+    return float(ego.profile.lengths_m[ego.profile.index_at(stop.s_m - 0.01)])  # every platform's start is a node
+
+
+def stands_behind(ego: PlannedTrain, ahead: PlannedTrain, stop, standstill_gap_m: float) -> bool:
+    """A convoy follower ``ego`` can stand at its stop behind ``ahead`` standing in the same platform,
+    ``standstill_gap_m`` apart: the platform holds both, and SUMO's stop window reaches back far
+    enough (:func:`stop_window_m`)."""
+    need = ahead.stock.length_m + standstill_gap_m + ego.stock.length_m
+    window = stop_window_m(ego, stop)
+    cut = 0.0 < window < min(stop.platform_length_m, ahead.stock.length_m + standstill_gap_m) - 1e-6
+    return not (0.0 < stop.platform_length_m < need - 1e-6 or cut)
+
+
 def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float]) -> list[str]:
     """Warn where a follower stops with the train ahead of it but the platform cannot hold both
     ``standstill_gap_m`` apart: the follower waits outside it until the train ahead has left, so the
@@ -106,11 +123,9 @@ def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: di
             for x in ego.stops + ([ego.final_stop] if ego.final_stop else []):
                 if x.platform not in ahead_at:
                     continue
-                # SUMO holds a train at its stop only with its front on the platform's last edge: where a change of
-                # gradient, speed, curve or tunnel cuts the platform, that is shorter than the platform
-                window = float(ego.profile.lengths_m[ego.profile.index_at(x.s_m - 0.01)])  # every platform's start is a node
+                window = stop_window_m(ego, x)
                 cut = 0.0 < window < min(x.platform_length_m, ahead.stock.length_m + gap) - 1e-6
-                if 0.0 < x.platform_length_m < need - 1e-6 or cut:
+                if not stands_behind(ego, ahead, x, gap):
                     w = short.setdefault(pair, {"ego": ego, "ahead": ahead, "need": need, "gap": gap, "at": {}, "n": set()})
                     w["at"].setdefault(x.station, f"{x.platform_length_m:g} m, cut by a gradient, speed, curve or tunnel change: SUMO's stop "
                                                    f"is its last {window:.0f} m" if cut else f"{x.platform_length_m:g} m")
@@ -173,10 +188,14 @@ def follower_stops(ego: PlannedTrain, pred: PlannedTrain, offset_m: float | None
     return stops, plats, stands
 
 
-def follower_dwells(ego: PlannedTrain, n_stops: int) -> list[float | None]:
-    """A convoy follower's own minimum dwell at each of its stops (:func:`follower_stops`' order; None
-    where it ends its run: nobody waits for it there), s."""
-    return ([x.dwell_s for x in ego.stops] + [None] * n_stops)[:n_stops]
+def follower_dwells(ego: PlannedTrain, pred: PlannedTrain, n_stops: int, standstill_gap_m: float) -> list[float | None]:
+    """A convoy follower's own minimum dwell at each of its stops (:func:`follower_stops`' order)
+    where its predecessor waits for it: where both stop in one platform that holds them
+    (:func:`stands_behind`); None where the follower ends its run, or waits outside the platform
+    until its predecessor has left (it serves its stop on its own there), s."""
+    pred_at = {x.platform for x in pred.stops}
+    out = [x.dwell_s if x.platform in pred_at and stands_behind(ego, pred, x, standstill_gap_m) else None for x in ego.stops]
+    return (out + [None] * n_stops)[:n_stops]
 
 
 def convoy_stop_holds(waiting: list[tuple[str, str, int, float]], now_s: float, step_s: float) -> dict[str, float]:

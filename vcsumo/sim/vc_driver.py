@@ -193,11 +193,12 @@ class VCDriver:
                             frames[other.id] = f
                 stops, plats, stands = follower_stops(ego, pred, frames[pred.id].offset_m if pred.id in frames else None)
                 self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params(),
-                                                   braking=RouteBraking(self.model, ego.stock, ego.profile), pred_stands_m=stands,
-                                                   dwells_s=follower_dwells(ego, len(stops)))
+                                                   braking=RouteBraking(self.model, ego.stock, ego.profile), pred_stands_m=stands)
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
         standstill = {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}
+        for fid, f in self.followers.items():  # where its predecessor waits for it to serve its dwell
+            f.dwells_s = follower_dwells(f.plan, f.pred, len(f.stops_m), standstill[fid])
         arrange_convoy_departures(convoys, standstill, self.model)
         warn_short_platforms(convoys, standstill)
         self.aligned_stops = align_convoy_stops(convoys)
