@@ -95,14 +95,34 @@ def stop_window_m(ego: PlannedTrain, stop) -> float:
     return float(ego.profile.lengths_m[ego.profile.index_at(stop.s_m - 0.01)])  # every platform's start is a node
 
 
-def stands_behind(ego: PlannedTrain, ahead: PlannedTrain, stop, standstill_gap_m: float) -> bool:
+def stands_behind(ego: PlannedTrain, ahead: PlannedTrain, stop, standstill_gap_m: float, queued_m: float = 0.0) -> bool:
     """A convoy follower ``ego`` can stand at its stop behind ``ahead`` standing in the same platform,
-    ``standstill_gap_m`` apart: the platform holds both, and SUMO's stop window reaches back far
-    enough (:func:`stop_window_m`)."""
-    need = ahead.stock.length_m + standstill_gap_m + ego.stock.length_m
+    ``standstill_gap_m`` apart, with ``ahead``'s front ``queued_m`` short of the stopping point (it
+    stands behind members of the convoy further ahead, :func:`platform_queues`): the platform holds
+    them all, and SUMO's stop window reaches back far enough (:func:`stop_window_m`)."""
+    behind = queued_m + ahead.stock.length_m + standstill_gap_m  # from the stopping point back to ego's front
     window = stop_window_m(ego, stop)
-    cut = 0.0 < window < min(stop.platform_length_m, ahead.stock.length_m + standstill_gap_m) - 1e-6
-    return not (0.0 < stop.platform_length_m < need - 1e-6 or cut)
+    cut = 0.0 < window < min(stop.platform_length_m, behind) - 1e-6
+    return not (0.0 < stop.platform_length_m < behind + ego.stock.length_m - 1e-6 or cut)
+
+
+def platform_queues(members: list[PlannedTrain], standstill_gap_m: dict[str, float]) -> dict[str, dict[str, float]]:
+    """Per member of a convoy (leader first), per platform it stops at: how far short of the stopping
+    point its front stands when it stands behind the members ahead of it that stop there too (each its
+    standstill gap behind the one ahead), m; 0 where it stands at the stopping point (it leads, or the
+    platform cannot hold it behind them: it waits outside until they have left).  A platform that holds
+    two of a convoy's trains does not hold three."""
+    out: dict[str, dict[str, float]] = {members[0].id: {}}
+    for k in range(1, len(members)):
+        ego, ahead = members[k], members[k - 1]
+        ahead_at = {x.platform for x in ahead.stops}  # (a final stop ends the train's run: it does not stand there)
+        gap = standstill_gap_m.get(ego.id, 0.0)
+        mine = out[ego.id] = {}
+        for x in ego.stops + ([ego.final_stop] if ego.final_stop else []):
+            q = out[ahead.id].get(x.platform, 0.0)
+            if x.platform in ahead_at and stands_behind(ego, ahead, x, gap, q):
+                mine[x.platform] = q + ahead.stock.length_m + gap
+    return out
 
 
 def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float]) -> list[str]:
@@ -112,21 +132,24 @@ def warn_short_platforms(convoys: list[list[PlannedTrain]], standstill_gap_m: di
     (their runs together; pairs within one service together by rolling stock), naming the platforms.  Returns the warnings."""
     short: dict[tuple, dict] = {}
     for members in convoys:
+        queues = platform_queues(members, standstill_gap_m)
         for k in range(1, len(members)):
             ego, ahead = members[k], members[k - 1]
             ahead_at = {x.platform for x in ahead.stops + ([ahead.final_stop] if ahead.final_stop else [])}
             gap = standstill_gap_m.get(ego.id, 0.0)
-            need = ahead.stock.length_m + gap + ego.stock.length_m
             # a pair of services (their runs together); members of one service (a unit of the capacity
             # study) by their trains, one warning for all such pairs of the same stock
             pair = (ahead.service, ego.service) if ahead.service != ego.service else ("", ahead.stock.name, ego.stock.name, gap)
             for x in ego.stops + ([ego.final_stop] if ego.final_stop else []):
                 if x.platform not in ahead_at:
                     continue
+                q = queues[ahead.id].get(x.platform, 0.0)  # the members standing ahead of ``ahead`` in the platform
                 window = stop_window_m(ego, x)
-                cut = 0.0 < window < min(x.platform_length_m, ahead.stock.length_m + gap) - 1e-6
-                if not stands_behind(ego, ahead, x, gap):
+                cut = 0.0 < window < min(x.platform_length_m, q + ahead.stock.length_m + gap) - 1e-6
+                if not stands_behind(ego, ahead, x, gap, q):
+                    need = q + ahead.stock.length_m + gap + ego.stock.length_m
                     w = short.setdefault(pair, {"ego": ego, "ahead": ahead, "need": need, "gap": gap, "at": {}, "n": set()})
+                    w["need"] = max(w["need"], need)
                     w["at"].setdefault(x.station, f"{x.platform_length_m:g} m, cut by a gradient, speed, curve or tunnel change: SUMO's stop "
                                                    f"is its last {window:.0f} m" if cut else f"{x.platform_length_m:g} m")
                     w["n"].add(ego.id)
@@ -188,13 +211,16 @@ def follower_stops(ego: PlannedTrain, pred: PlannedTrain, offset_m: float | None
     return stops, plats, stands
 
 
-def follower_dwells(ego: PlannedTrain, pred: PlannedTrain, n_stops: int, standstill_gap_m: float) -> list[float | None]:
+def follower_dwells(ego: PlannedTrain, pred: PlannedTrain, n_stops: int, standstill_gap_m: float, queued_m: dict[str, float] | None = None) -> list[float | None]:
     """A convoy follower's own minimum dwell at each of its stops (:func:`follower_stops`' order)
     where its predecessor waits for it: where both stop in one platform that holds them
-    (:func:`stands_behind`); None where the follower ends its run, or waits outside the platform
-    until its predecessor has left (it serves its stop on its own there), s."""
+    (:func:`stands_behind`; ``queued_m``: per platform, how far short of the stopping point the
+    predecessor's front stands behind the members ahead of it, :func:`platform_queues`); None where the
+    follower ends its run, or waits outside the platform until its predecessor has left (it serves
+    its stop on its own there), s."""
     pred_at = {x.platform for x in pred.stops}
-    out = [x.dwell_s if x.platform in pred_at and stands_behind(ego, pred, x, standstill_gap_m) else None for x in ego.stops]
+    q = queued_m or {}
+    out = [x.dwell_s if x.platform in pred_at and stands_behind(ego, pred, x, standstill_gap_m, q.get(x.platform, 0.0)) else None for x in ego.stops]
     return (out + [None] * n_stops)[:n_stops]
 
 

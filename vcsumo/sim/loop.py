@@ -246,6 +246,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     with SumoBackend(args, error_log=out / "sumo_errors.log", label=label, on_failure=stopped_at) as sim:
         if supervisor is not None:
             supervisor.held_at_stop = sim.at_stop
+            locking.single.attach(sim.hold_insertion, sim.time)  # trains entering on single track wait until given it
         t = sim.time
         ahead = TrainsAhead(sim, {p.id: p.profile.edges for p in scn.trains}, lookahead)
         while True:
@@ -370,7 +371,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 moving = {r[0]: (r[2], r[3]) for r in rows}
                 for sig, train, foe in locking.update(moving):
                     sim.add_constraint(sig, train, sig, foe)
-                for sig, train, foe_sig, foe in locking.single.update(moving):  # one direction at a time on single track
+                for sig, train, foe_sig, foe in locking.single.update(moving, t):  # one direction at a time on single track
                     sim.add_constraint(sig, train, foe_sig, foe)
             for r in rows:
                 vid = r[0]

@@ -25,8 +25,13 @@ a single-line block) is:
   clearance (overlap or margin, position errors, the age of a report), or the train has left
   the network (a train whose journey ends on the stretch).
 
-A train that enters the network on a stretch (its origin lies on single track) holds it from its
-departure.
+A train that enters the network on a stretch (its origin lies on single track) asks for it at its
+departure time, like any other, and SUMO does not insert it before it is given the stretch (an
+insertion constraint at the first signal ahead of it, :meth:`SingleTrackLocking.attach`): SUMO's own
+insertion checks only the track at the insertion place, so it put a train into its platform on a
+single-track branch as soon as the platform was free, with an opposing train already running towards
+it on the stretch (seen: a head-on collision at 120 km/h).  A train inserted without such a signal
+holds the stretch from its departure.
 
 :class:`OpposingTrains` is the check that the rule held: two trains running opposite ways whose
 occupied (and, over the step, swept) lengths of the same single track overlap have met head on.
@@ -154,6 +159,42 @@ class SingleTrackLocking:
         self.constraints: set[tuple[str, str, str, str]] = set()
         self.s_m: dict[str, float] = {}
         self.gone: set[str] = set()
+        self.inserting: dict[str, tuple[float, Run, str]] = {}
+        """Trains whose origin lies on a stretch: (departure time, their first run, the first signal
+        ahead of them), by departure; kept out of the network until given the stretch (:meth:`attach`)."""
+        self._hold: Callable[[str, str, bool], None] | None = None
+        for t in sorted(trains, key=lambda x: x.depart_s):
+            runs = self.runs.get(t.id)
+            if runs and runs[0].starts_inside:
+                k0 = t.profile.index_at(t.start_s_m)
+                sig = next((topo.edges[e].to_node for e in t.edges[k0:-1] if topo.edges[e].to_node in self.signals), None)
+                if sig is not None:
+                    self.inserting[t.id] = (t.depart_s, runs[0], sig)
+
+    def attach(self, hold: Callable[[str, str, bool], None], now_s: float) -> None:
+        """Keep every train whose origin lies on a stretch out of the network until it is given the
+        stretch: ``hold(signal, train, True)`` now (before the first step), ``hold(signal, train,
+        False)`` once given (:meth:`update`); ``now_s``: the time of the next step."""
+        self._hold = hold
+        for tid, (_, _, sig) in self.inserting.items():
+            hold(sig, tid, True)
+        self._insertions(now_s)
+
+    def _insertions(self, now_s: float) -> None:
+        """Trains due to enter the network on a stretch by ``now_s`` ask for it; each one given it may enter."""
+        for tid, (dep, run, sig) in list(self.inserting.items()):
+            if dep > now_s + 1e-9:
+                break
+            key = (tid, run.first)
+            queue = self.order.setdefault(run.stretch, [])
+            if not any(x == tid and r.first == run.first for x, r in queue):
+                queue.append((tid, run))
+                self.on_change()
+            if self._may_have(tid, run):
+                self.given.add(key)
+                self.on_change()
+                del self.inserting[tid]
+                self._hold(sig, tid, False)
 
     # ------------------------------------------------------------------------------------------
     def _may_have(self, tid: str, run: Run) -> bool:
@@ -165,12 +206,15 @@ class SingleTrackLocking:
                 return False
         return True
 
-    def update(self, states: dict[str, tuple[float, float]]) -> list[tuple[str, str, str, str]]:
-        """Advance the requests with this step's (route position, speed) of the running trains;
-        returns the new SUMO constraints (signal, train, foe's signal, foe)."""
+    def update(self, states: dict[str, tuple[float, float]], now_s: float | None = None) -> list[tuple[str, str, str, str]]:
+        """Advance the requests with this step's (route position, speed) of the running trains
+        (``now_s``: the time of the next step, when trains entering on a stretch are held,
+        :meth:`attach`); returns the new SUMO constraints (signal, train, foe's signal, foe)."""
         new: list[tuple[str, str, str, str]] = []
         if not self.active:
             return new
+        for tid in states.keys() & self.inserting.keys():  # entered although held (SUMO did not check the signal): holds it as before
+            del self.inserting[tid]
         a = self.model.assumptions
         self.s_m.update({tid: st[0] for tid, st in states.items()})
         for tid, (s_m, v) in states.items():
@@ -212,6 +256,8 @@ class SingleTrackLocking:
                 else:
                     keep.append((tid, run))
             self.order[k] = keep
+        if self._hold is not None and now_s is not None and self.inserting:
+            self._insertions(now_s)
         return new
 
     def _constrain(self, tid: str, run: Run, new: list) -> None:

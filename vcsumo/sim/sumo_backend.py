@@ -34,6 +34,8 @@ from vcsumo.sim.sumo_paths import sumo_binary, sumo_home
 
 SPEED_MODE_DEFAULT = 31
 SPEED_MODE_VC_FOLLOWER = 26
+INSERTION_HOLD = "vcsumo:hold"
+"""The foe of an insertion constraint that keeps a train out of the network until removed (no train has this id)."""
 INVALID_DISTANCE = -1073741824.0
 
 
@@ -409,6 +411,15 @@ class SumoBackend:
         rest = until_s - self._ls.simulation.getTime()
         if stops and stops[0].arrival >= 0.0 and rest > stops[0].duration + 1e-6:
             self._ls.vehicle.setStopParameter(vid, 0, "duration", f"{rest:.3f}")
+
+    @_traci
+    def hold_insertion(self, signal: str, vid: str, hold: bool) -> None:
+        """Keep a train not yet in the network from being inserted in front of ``signal`` (an
+        insertion constraint on a foe that never comes), or let it be inserted again."""
+        if hold:
+            self._ls.trafficlight.addConstraint(signal, vid, signal, INSERTION_HOLD, 1, 1)
+        else:
+            self._ls.trafficlight.removeConstraints(signal, vid, signal, INSERTION_HOLD)
 
     @_traci
     def add_constraint(self, signal: str, train: str, foe_signal: str, foe: str) -> None:

@@ -67,7 +67,7 @@ from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
 from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
 from vcsumo.sim.convoy_plan import (MIN_CONVOY_DWELL_S, Frame, align_convoy_stops, arrange_convoy_departures, convoy_stop_holds, convoys_from_timetable,
-                                    follower_dwells, follower_stops, frame, load_channel,
+                                    follower_dwells, follower_stops, frame, load_channel, platform_queues,
                                      warn_short_platforms)
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
@@ -197,8 +197,9 @@ class VCDriver:
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
         standstill = {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}
-        for fid, f in self.followers.items():  # where its predecessor waits for it to serve its dwell
-            f.dwells_s = follower_dwells(f.plan, f.pred, len(f.stops_m), standstill[fid])
+        queues = {tid: q for members in convoys for tid, q in platform_queues(members, standstill).items()}
+        for fid, f in self.followers.items():  # where its predecessor waits for it to serve its dwell (the platform holds them all)
+            f.dwells_s = follower_dwells(f.plan, f.pred, len(f.stops_m), standstill[fid], queues[f.pred.id])
         arrange_convoy_departures(convoys, standstill, self.model)
         warn_short_platforms(convoys, standstill)
         self.aligned_stops = align_convoy_stops(convoys)
