@@ -1,14 +1,16 @@
 """Tier 1 — networks of lines: loading, checks, the stitched topology, routes across lines (no SUMO)."""
 
+import warnings
+
 import pytest
 
 from vcsumo.errors import InputError
-from vcsumo.line import load_line
+from vcsumo.line import Line, load_line
 from vcsumo.network_file import Network, load_line_or_network, load_network
 from vcsumo.network_topology import build_network_topology
 from vcsumo.route_profile import RouteProfile
 from vcsumo.timetable import load_timetable, plan_trains
-from vcsumo.topology import reachable
+from vcsumo.topology import build_topology, reachable
 
 from .conftest import write
 
@@ -231,6 +233,21 @@ def test_part_of_a_line_keeps_its_signals_and_chainage(tmp_path):
     assert z_part[8.0] - z_part[6.0] == pytest.approx(z_whole[8.0] - z_whole[6.0]) == pytest.approx(10.0)
 
 
+def test_block_origin_counts_the_regular_markers(tmp_path):
+    """``block_origin_km``: the markers of a line cut from a longer one, counted from the longer
+    line's start; given without ``block_length_m`` it names the field."""
+    two = load_network(make_network(tmp_path / "net"))
+    d = two.lines["alpha"].data
+    cut = Line(d.model_copy(update={"signalling": d.signalling.model_copy(update={"block_origin_km": 0.3})}), two.lines["alpha"].path)
+    topo = build_topology(cut)
+    sig = sorted(round(topo.nodes[topo.edges[e].to_node].km, 3) for e in topo.tracks["main_up"].edges[:-1] if topo.edges[e].to_node in topo.signal_nodes())
+    assert [k for k in sig if 2.0 < k < 5.0] == [2.3, 3.3, 4.3]
+    bad = write(tmp_path / "bad.yaml", ALPHA.replace("signalling: {block_length_m: 1000}", "signalling: {signals_km: [2.0], block_origin_km: 0.5}"))
+    with pytest.raises(InputError) as exc:
+        load_line(bad)
+    assert "signalling" in str(exc.value) and "block_origin_km" in str(exc.value)
+
+
 def test_shipped_network_and_line_names(root):
     net = load_line_or_network("italy_av_north")
     assert isinstance(net, Network) and set(net.lines) == {"milano_bologna", "firenze_bologna", "venezia_link"}
@@ -239,7 +256,10 @@ def test_shipped_network_and_line_names(root):
     with pytest.raises(InputError) as exc:  # the single-line loader points at the network
         load_line("italy_av_north")
     assert "network of lines" in str(exc.value) and "network.yaml" in str(exc.value)
-    topo = build_network_topology(net)
+    with warnings.catch_warnings(record=True) as said:  # a line's regular block markers cut with it are not the user's signals
+        warnings.simplefilter("always")
+        topo = build_network_topology(net)
+    assert not [str(w.message) for w in said if "signals_km" in str(w.message)]  # (milano_bologna's marker at 85.55 km was said)
     # Milano -> Firenze and Venezia -> Firenze run through; Firenze -> Venezia splits at Bivio Venezia
     for a, b in (("MIRO", "FISMN"), ("venezia_link:end", "FISMN"), ("FISMN", "venezia_link:end"), ("FISMN", "MIRO")):
         starts = [p.edge for p in topo.platforms_of(a)] if a in net.all_station_ids() else topo.end_edges(a)[0]

@@ -83,6 +83,7 @@ class Signalling(StrictModel):
 
     block_length_m: float | None = Field(default=None, ge=100, le=50000, description="Regular block length, m (markers from the section start); 100 m–50 km: shorter is not a block section, longer exceeds any real block")
     signals_km: list[Km] | None = Field(default=None, description="Explicit block-marker positions, km (both directions)")
+    block_origin_km: Km | None = Field(default=None, description="Where the regular markers are counted from, km (default: the section start; a line cut from a longer one keeps the longer line's markers)")
     min_block_length_m: float = Field(default=100.0, ge=0, le=10000, description="Regular markers closer than this to a station or junction signal are dropped, m")
 
     @model_validator(mode="after")
@@ -91,6 +92,8 @@ class Signalling(StrictModel):
             raise ValueError("give either block_length_m or signals_km")
         if self.block_length_m is not None and self.signals_km:
             raise ValueError("give block_length_m or signals_km, not both")
+        if self.block_origin_km is not None and self.block_length_m is None:
+            raise ValueError("block_origin_km counts regular markers: give block_length_m with it")
         return self
 
 

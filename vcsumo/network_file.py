@@ -105,18 +105,19 @@ def _elevation_at(d: LineFile, km: float) -> float:
 
 def line_part(d: LineFile, lo: float, hi: float, branches: list[str] | None, block_length_m: float | None = None) -> LineFile:
     """The line file cut to its main line from ``lo`` to ``hi`` km (stations, ranges and branches
-    inside), with the block markers where the whole line has them (explicit ``signals_km``).
+    inside), with the block markers where the whole line has them (its ``signals_km``, or its regular markers
+    counted from its start: ``block_origin_km``).
 
     Not validated here: :func:`check_network` checks the cut (platforms cut through, ranges).
     """
     sig = d.signalling
     blk = block_length_m if block_length_m is not None else sig.block_length_m
     if block_length_m is None and sig.signals_km:
-        markers = [k for k in sig.signals_km if lo < k < hi]
-    else:
-        step = blk / 1000.0
-        n = int(math.floor((d.km_end - d.km_start) / step + 1e-9))
-        markers = [d.km_start + i * step for i in range(1, n + 1) if lo < d.km_start + i * step < hi]
+        signalling = Signalling.model_construct(block_length_m=None, signals_km=[k for k in sig.signals_km if lo < k < hi], block_origin_km=None,
+                                                min_block_length_m=sig.min_block_length_m)
+    else:  # the whole line's regular markers (counted from its start), not the cut's
+        origin = sig.block_origin_km if block_length_m is None and sig.block_origin_km is not None else d.km_start
+        signalling = Signalling.model_construct(block_length_m=blk, signals_km=None, block_origin_km=origin, min_block_length_m=sig.min_block_length_m)
     keep = [b for b in d.branches if (branches is None or b.id in branches) and lo - 1e-9 <= b.junction_km <= hi + 1e-9]
     keep = [b if b.block_length_m is not None or blk is None else b.model_copy(update={"block_length_m": blk}) for b in keep]
     return d.model_copy(update={
@@ -124,7 +125,7 @@ def line_part(d: LineFile, lo: float, hi: float, branches: list[str] | None, blo
         "stations": [s for s in d.stations if lo <= s.km <= hi],
         "speed_limits": _clip(d.speed_limits, lo, hi), "gradients": _clip(d.gradients, lo, hi),
         "curves": _clip(d.curves, lo, hi), "tunnels": _clip(d.tunnels, lo, hi),
-        "signalling": Signalling.model_construct(block_length_m=None, signals_km=markers, min_block_length_m=sig.min_block_length_m),
+        "signalling": signalling,
         "headway": None, "branches": keep,
     })
 

@@ -61,6 +61,7 @@ class _Section:
     signals_km: list[float] | None
     single: bool
     min_block_m: float
+    origin_km: float | None = None  # regular markers counted from here (None: c0)
 
     def speed_at(self, c: float) -> float:
         for r in self.speed_limits:
@@ -97,8 +98,9 @@ def _signal_positions(sec: _Section, mandatory: set[float]) -> set[float]:
         markers = [c for c in sec.signals_km if sec.c0 < c < sec.c1]
     elif sec.block_length_m:
         step = sec.block_length_m / 1000.0
-        n = int(math.floor((sec.c1 - sec.c0) / step + 1e-9))
-        markers = [sec.c0 + i * step for i in range(1, n + 1) if sec.c0 + i * step < sec.c1 - 1e-9]
+        o = sec.c0 if sec.origin_km is None else sec.origin_km
+        n = int(math.floor((sec.c1 - o) / step + 1e-9))
+        markers = [o + i * step for i in range(1, n + 1) if sec.c0 < o + i * step < sec.c1 - 1e-9]
     else:
         markers = []
     keep = set()
@@ -173,6 +175,7 @@ def build_topology(line: Line, block_length_m: float | None = None, junctions_km
         id="main", c0=d.km_start, c1=d.km_end, line_speed_ms=kmh_to_ms(d.line_speed_kmh), speed_limits=list(d.speed_limits),
         gradients=list(d.gradients), curves=list(d.curves), tunnels=list(d.tunnels), stations=list(d.stations),
         block_length_m=blk, signals_km=sig_km, single=single_main, min_block_m=sig.min_block_length_m,
+        origin_km=sig.block_origin_km if block_length_m is None else None,
     )
     junction_kms = {_round_km(b.junction_km) for b in d.branches} | {_round_km(k) for k in junctions_km}
     mandatory_up = {_round_km(st.km + st.platform_length_m / 2000.0) for st in d.stations} | junction_kms
