@@ -73,13 +73,17 @@ def unhealthy_reasons(summary: dict, cut_short: bool = False) -> list[str]:
     return out if out or cut_short or summary.get("healthy", True) else ["not healthy (see summary.json)"]
 
 
-def health_line(summary: dict, reasons: list[str]) -> str:
-    """The run's health in one terminal line: the verdict, then every counter it rests on."""
+def health_line(summary: dict, reasons: list[str], cut_short: bool = False) -> str:
+    """The run's health in one terminal line: the verdict, then every counter it rests on.
+    ``cut_short``: the run was stopped at ``--end-time`` (see :func:`unhealthy_reasons`); with no
+    reason against it, the verdict says that nothing was wrong until then, not that it is healthy."""
     s = summary
     gap, margin = s.get("min_gap_m"), s.get("min_margin_m")
     def metres(x) -> str:
         return f"{x:.1f} m" if isinstance(x, (int, float)) and math.isfinite(x) else "– (no train ran behind another)"
     verdict = "healthy" if s.get("healthy") and not reasons else "NOT healthy"
+    if verdict != "healthy" and cut_short and not reasons:
+        verdict = "cut short at --end-time, nothing wrong until then (NOT healthy as a whole run)"
     return (f"health: {verdict} — trains arrived {s.get('trains_arrived')}/{s.get('trains')}, stops served {s.get('stops_served', 0)}/"
             f"{s.get('stops_scheduled', 0)} (skipped {s.get('stops_skipped', 0)}, short dwell {s.get('short_dwells', 0)}), min margin to the safe separation {metres(margin)}, "
             f"min gap {metres(gap)}, gap violations {s.get('gap_violations', 0)}, collisions {s.get('collisions', 0)}, "
@@ -141,7 +145,7 @@ def run(cfg: RunConfig) -> None:
                 ["train", "departure", "arrival", "run_min", "delay_s", "min_gap_m", "gap_violations", "emergency_brakes"], csv_path=out / "summary.csv")
     cut_short = cfg.end_time is not None and s.get("simulated_until_s", 0) >= cfg.end_time - cfg.step_s
     reasons = unhealthy_reasons(s, cut_short=cut_short)
-    out_console.print(health_line(s, reasons))
+    out_console.print(health_line(s, reasons, cut_short))
     if driver is not None:
         loose = {fid: f.formation.reason() for fid, f in driver.followers.items() if f.formation.reason()}
         text = "; ".join(f"{fid}: {why}" for fid, why in sorted(loose.items())[:6]) + (" …" if len(loose) > 6 else "")
