@@ -249,13 +249,21 @@ def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile:
 def coupled_gap_m(setup: FollowerSetup, lead: RollingStock, ego: RollingStock, profile: RouteProfile, s_leader: float, v: float, step_s: float) -> float:
     """Front-to-rear gap at which a follower sits on its own reference behind a leader cruising at v.
 
-    Cruise family: on z_τ2 (eq. 27) with τ̄ = its fixed (initial) delay; others: the stack's coupled spacing."""
+    Cruise family: on z_τ2 (eq. 27) with τ̄ = its fixed (initial) delay; others: the stack's coupled spacing,
+    and under a supervisor (``cbf-*``) at least where its barrier on these states is −1 m: the controller
+    sits where its supervisor lets it (a ``cbf-mpc`` follower at the NMPC's own spacing starts inside the
+    CBF's unsafe set)."""
     ctrl = setup.stack.nominal
     cruise = getattr(ctrl, "cfg", None)
     if not isinstance(cruise, CruiseConfig):
+        sup = setup.stack.supervisor
         gap = float(setup.stack.coupled_gap_m(v))
         for _ in range(4):  # on the route: the spacing follows the gradients under the follower, whose place depends on the gap
-            gap = float(setup.stack.coupled_gap_m(v, position_m=s_leader - lead.length_m - gap))
+            s_f = s_leader - lead.length_m - gap
+            gap = float(setup.stack.coupled_gap_m(v, position_m=s_f))
+            if sup is not None and hasattr(sup, "required_gap_m"):
+                f_hold = steady_force(ego.params(), v, profile, s_f) if v > 0 else 0.0  # the force it starts with (build_setup)
+                gap = max(gap, float(sup.required_gap_m(profile, s_leader, v, s_f, v, f_hold)) + 1.0)
         return gap
     model = BarrierModel(BoxBounds.from_stock(lead), BoxBounds.from_stock(ego), ctrl.cbf, profile)
     msg = Message(sender="leader", sent_time_s=0.0, state=TrainStateMsg(0.0, s_leader, v), length_m=lead.length_m)
