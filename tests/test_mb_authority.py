@@ -40,8 +40,9 @@ def test_every_mb_authority_is_built_from_the_leaders_reported_position(tmp_path
     checked = []
     authority = supervision.BrakingCurveSupervisor.authority_distance
 
-    def checked_authority(self, train_id, s_m, gap_m, leader_id, now_s):
-        d = authority(self, train_id, s_m, gap_m, leader_id, now_s)
+    def checked_authority(self, train_id, s_m, gap_m, leader_id, now_s, fouling=False):
+        d = authority(self, train_id, s_m, gap_m, leader_id, now_s, fouling)
+        assert not fouling  # (no junction on felez_test: a gap to a fouling point is tested in test_unseen6_junction_fouling)
         if leader_id is None or math.isinf(gap_m):
             return d
         t_ref = self.information_time(leader_id, now_s)

@@ -73,9 +73,14 @@ def experiment_cmd(file: str, variants: str | None, seeds: str | None, no_plots:
     print_table(headline(table), f"{runs[0][1].name} — {runs[0][1].title}" if runs[0][1].title else runs[0][1].name, csv_path=out / "measurements.csv")
     for r in results:
         if not r.healthy:
-            over = r.overspeeding()
-            why = f"above the permitted speed: {', '.join(over)}" if over else "a collision, or the true barrier above zero"
+            over, below = r.overspeeding(), r.below_separation()
+            why = "; ".join(([f"above the permitted speed: {', '.join(over)}"] if over else [])
+                            + ([f"below the safe separation: {', '.join(below)}"] if below else [])) or "a collision, or the true barrier above zero"
             out_console.print(f"{r.run}: NOT HEALTHY ({why}: see measurements.csv)", markup=False, highlight=False)
+        unguarded = r.below_separation(guarded=False)
+        if unguarded:
+            out_console.print(f"{r.run}: below the safe separation without the separation guard (guard: false, not judged): {', '.join(unguarded)}",
+                              markup=False, highlight=False)
         stop = r.measurements[r.measurements["quantity"] == "leader_stop_time_s"]["value"]
         if len(stop) and stop.isna().all():
             out_console.print(f"{r.run}: the leader did not stop within the run: no stop measured", markup=False, highlight=False)

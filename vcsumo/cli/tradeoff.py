@@ -22,7 +22,9 @@ OPTION_OF = {"delays_s": "--delays", "position_errors_m": "--position-errors", "
 """Config field -> option, where the names differ by more than ``_`` and ``-``."""
 
 
-UNHEALTHY_COUNTERS = ("below_separation_time_s", "overspeed_events", "beyond_service_brakings", "authority_overruns", "stops_skipped", "emergency_brakes")
+UNHEALTHY_COUNTERS = ("gap_violations", "collisions", "below_separation_time_s", "overspeed_events", "beyond_service_brakings", "authority_overruns",
+                      "stops_skipped", "short_dwells", "sumo_emergency_stops", "emergency_brakes")
+"""The counters a simulated check is not healthy for, named in its line (every one the capacity row's health rests on)."""
 
 
 def _floats(value: str, option: str) -> list[float]:
@@ -112,8 +114,8 @@ def tradeoff_cmd(line_spec: str, train: str | None, convoy_sizes: str, delays: s
                           else f"VC n={b.convoy_size}: beats MB at every T2T delay bound up to {b.searched_up_to:g} s")
     if res.check is not None:
         for _, c in res.check.iterrows():
-            health = "healthy" if c.healthy else "NOT healthy (" + ", ".join(
-                f"{k.replace('_', ' ')} {int(c[k])}" for k in UNHEALTHY_COUNTERS if c[k] == c[k] and c[k] > 0) + ")"
+            why = [f"{k.replace('_', ' ')} {c[k]:g}" for k in UNHEALTHY_COUNTERS if c[k] == c[k] and c[k] > 0]
+            health = "healthy" if c.healthy else f"NOT healthy ({', '.join(why) or 'a train did not arrive or a stop was not reached'})"
             text = (f"error: {c.error}" if c.error else f"sim {c.headway_sim_s:.1f} s vs analytic {c.headway_analytic_s:.1f} s "
                     f"({c.deviation_pct:+.1f} %), {health}, gap violations {int(c.gap_violations)}, collisions {int(c.collisions)}, "
                     f"min margin {c.min_margin_m:.1f} m")

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from vcsumo.running_time import Stop, unhindered_run
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.timetable import PlannedTrain
 
 def route_end_s(t: PlannedTrain) -> float:
@@ -44,16 +45,19 @@ def departure_index(run: pd.DataFrame, stop_s: float, from_index: int = 0) -> in
     return i
 
 
-def timetable_run(train: PlannedTrain, dt: float = 0.5) -> pd.DataFrame:
+def timetable_run(train: PlannedTrain, dt: float = 0.5, model: SeparationModel | None = None) -> pd.DataFrame:
     """The train's scheduled running profile in absolute time (``time_s, s_m, speed_mps, accel_mps2``).
 
     See "Running profiles" in the module docstring: the unhindered run, each stretch between
     timing points slowed uniformly to meet the scheduled arrival at its end, dwells extended to
-    the scheduled departures.
+    the scheduled departures.  ``model``: the run braking on its guaranteed, gradient-compensated
+    curve under that assumption set, as the supervision brakes every train SUMO drives (None:
+    SUMO's own driving, its nominal service brake).
     """
     p = train.stock.params()
+    curve = RouteBraking(model, train.stock, train.profile).curve(1.5 * dt) if model is not None else None
     run = unhindered_run(p, train.profile, dt=dt, s0=train.start_s_m, v0=train.depart_speed_mps,
-                         stops=[Stop(s.s_m, s.dwell_s) for s in train.stops], end_s=route_end_s(train), stop_at_end=train.stop_at_end)
+                         stops=[Stop(s.s_m, s.dwell_s) for s in train.stops], end_s=route_end_s(train), stop_at_end=train.stop_at_end, curve=curve)
     t = run["time_s"].to_numpy()
     s = run["s_m"].to_numpy()
     v = run["speed_mps"].to_numpy().copy()
@@ -124,8 +128,9 @@ def reference_arrival_s(train: PlannedTrain, dt: float = 0.5, run: pd.DataFrame 
     return float(run["time_s"].iloc[-1]) + extra
 
 
-def reference_arrivals(trains: list[PlannedTrain], dt: float = 0.5) -> dict[str, float]:
-    """:func:`reference_arrival_s` of every train (trains repeating a pattern share one profile)."""
+def reference_arrivals(trains: list[PlannedTrain], dt: float = 0.5, model: SeparationModel | None = None) -> dict[str, float]:
+    """:func:`reference_arrival_s` of every train (trains repeating a pattern share one profile);
+    ``model``: on the supervision's braking curves under that set (:func:`timetable_run`)."""
     cache: dict[tuple, pd.DataFrame] = {}
     out: dict[str, float] = {}
     for t in trains:
@@ -134,7 +139,7 @@ def reference_arrivals(trains: list[PlannedTrain], dt: float = 0.5) -> dict[str,
             continue
         key = pattern_key(t)
         if key not in cache:
-            cache[key] = timetable_run(at_time_zero(t), dt)
+            cache[key] = timetable_run(at_time_zero(t), dt, model)
         rel = cache[key]
         extra = 1.0 if t.final_stop is None and t.stop_at_end and t.end_pos_m is not None else 0.0
         out[t.id] = t.depart_s + float(rel["time_s"].iloc[-1]) + extra

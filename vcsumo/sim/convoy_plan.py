@@ -251,6 +251,8 @@ class Frame:
     shared_end_a_m: float
     """End of the shared stretch in a's frame (after it the routes part)."""
     shared_end_b_m: float
+    shared_start_a_m: float = 0.0
+    """Start of the shared stretch in a's frame (where the routes meet: a merge, or a's start)."""
 
 
 def frame(a: PlannedTrain, b: PlannedTrain) -> Frame | None:
@@ -265,4 +267,4 @@ def frame(a: PlannedTrain, b: PlannedTrain) -> Frame | None:
         j += 1
     pa, pb = a.profile, b.profile
     offset = float(pb.starts_m[pos_b[a.edges[first]]] - pa.starts_m[first])
-    return Frame(offset, float(pa.starts_m[i] + pa.lengths_m[i]), float(pb.starts_m[j] + pb.lengths_m[j]))
+    return Frame(offset, float(pa.starts_m[i] + pa.lengths_m[i]), float(pb.starts_m[j] + pb.lengths_m[j]), float(pa.starts_m[first]))

@@ -281,6 +281,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             obs = dict(zip(active, observed))
             leads = ahead.leaders(active, observed)  # the train ahead on the route and the gap to its rear
             rows: list[tuple] = []  # (vid, track, s, speed, accel, edge, lead, gap, controlled)
+            fouled: set[str] = set()  # trains whose gap runs to a junction the train ahead fouls (a fixed point)
             prev_pos = []
             for vid, (edge, lane_pos, _v, _a, odo, ridx) in zip(active, observed):  # every route position first: the gap checks read the train ahead's
                 tr = state[vid]
@@ -319,6 +320,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     g = locking.fouling_gap(vid, s_now, lead[0], state[lead[0]].s)
                     if g is not None:
                         gap = g
+                        fouled.add(vid)
                 if gap < tr.min_gap:
                     tr.min_gap = gap
                 if scn.trace_speeds:
@@ -339,7 +341,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if not controlled:
                         lead_id = lead[0] if lead else None
                         if not quiet(vid, t, s_now, speed, gap, lead_id):
-                            perms[i] = supervisor.permitted(vid, t, s_now, speed, gap, lead_id)
+                            perms[i] = supervisor.permitted(vid, t, s_now, speed, gap, lead_id, vid in fouled)
             c = clock()
             cpu["supervision"] += c - c_mark
             c_mark = c
@@ -462,7 +464,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         tr.released_s = t
                         if supervisor is not None:  # supervised from this very step: no step of SUMO alone
                             ts = snap[vid]
-                            perm = supervisor.permitted(vid, t, ts.s_m, ts.speed_mps, ts.gap_m, ts.leader)
+                            perm = supervisor.permitted(vid, t, ts.s_m, ts.speed_mps, ts.gap_m, ts.leader, vid in fouled)
                             if perm.speed_mps < ts.speed_mps + 2.0:
                                 sim.set_speed(vid, perm.speed_mps)
                                 capped.add(vid)

@@ -233,13 +233,16 @@ class BrakingCurveSupervisor:
             t_ref = lead.first_seen_s + math.floor((t_ref - lead.first_seen_s) / period + 1e-9) * period
         return t_ref
 
-    def authority_distance(self, train_id: str, s_m: float, gap_m: float, leader_id: str | None, now_s: float) -> float:
-        """Distance from the front to the end of movement authority given the train ahead, m."""
+    def authority_distance(self, train_id: str, s_m: float, gap_m: float, leader_id: str | None, now_s: float, fouling: bool = False) -> float:
+        """Distance from the front to the end of movement authority given the train ahead, m.
+
+        ``fouling``: the gap runs to the junction the train ahead still fouls (the loop's fouling gap),
+        a fixed point: it does not move back by the run of that train since its last report."""
         if leader_id is None or math.isinf(gap_m):
             return math.inf
         lead = self.curves.get(leader_id)
         # (without a history the authority is built from the present position: nothing moved since)
-        moved = 0.0 if lead is None or not self._history else self._moved_since(leader_id, lead, self.information_time(leader_id, now_s))
+        moved = 0.0 if lead is None or not self._history or fouling else self._moved_since(leader_id, lead, self.information_time(leader_id, now_s))
         rear = s_m + gap_m - moved
         if self.regime == "mb":
             return rear - s_m - self._margin - self._uncertainty
@@ -310,7 +313,8 @@ class BrakingCurveSupervisor:
         c.quiet_gap = reach + (self._gap_slack if self.regime == "mb" else self._gap_slack_of[train_id])
         c.quiet_v_failed = v_mps if s_m >= c.quiet_until else math.inf
 
-    def permitted(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None) -> Permitted:
+    def permitted(self, train_id: str, now_s: float, s_m: float, v_mps: float, gap_m: float = math.inf, leader_id: str | None = None,
+                  fouling: bool = False) -> Permitted:
         """The lowest braking curve over the train's targets, for the next step, m/s.
 
         A target matters only within the reach (1.3 × the stopping distance + 50 m); when the nearest
@@ -334,7 +338,7 @@ class BrakingCurveSupervisor:
             # in the platform further back (a follower waiting behind its predecessor) is not served:
             # the stop stays the target, or the train would run through it once the one ahead has left
             c.next_stop += 1
-        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s) if leader_id is not None else math.inf
+        d_ma = self.authority_distance(train_id, s_m, gap_m, leader_id, now_s, fouling) if leader_id is not None else math.inf
         if self.locking is not None:
             d_lock = self.locking.authority_distance(train_id, s_m)
             if d_lock < d_ma:

@@ -27,7 +27,9 @@
 
 Convoy leaders and trains outside convoys stay with SUMO (moving block).  A follower is coupled
 while its predecessor is on the part of its route they share (through a merge, the gap is the
-difference of their distances to the merge point); after a split it is handed back to SUMO.
+difference of their distances to the merge point; before its predecessor has reached the merge only
+once that puts it virtually ahead by the spacing the follower's stack keeps and the safe separation);
+after a split it is handed back to SUMO.
 
 Stations.  Convoy members leaving the same platform together depart at the leader's time, the
 follower standing behind the leader at its standstill gap (the convoy stands in the platform as
@@ -60,7 +62,7 @@ from vcsumo.control.faults import FAULT_KINDS, faults_frame
 from vcsumo.control.guard import GuardConfig, load_guard
 from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
-from vcsumo.signalling.separation import RouteBraking, SeparationModel
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.results import write_json
@@ -124,6 +126,8 @@ class _Follower:
     """Per stop: where the predecessor's front will stand when it stops in the same platform (this
     follower's route frame; None: it does not stop there), m."""
     params: object = None
+    rule: RelativeBraking | None = None
+    """The relative-braking rule behind its predecessor (the run-health monitor's), on its route."""
     next_stop: int = 0
     stop_handovers: int = 0
     at_stop: bool = False
@@ -193,7 +197,8 @@ class VCDriver:
                             frames[other.id] = f
                 stops, plats, stands = follower_stops(ego, pred, frames[pred.id].offset_m if pred.id in frames else None)
                 self.followers[ego.id] = _Follower(ego, pred, ids, stack, stack.d_min_m, frames, stops_m=stops, platforms_m=plats, params=ego.stock.params(),
-                                                   braking=RouteBraking(self.model, ego.stock, ego.profile), pred_stands_m=stands)
+                                                   braking=RouteBraking(self.model, ego.stock, ego.profile), pred_stands_m=stands,
+                                                   rule=RelativeBraking(self.model, ego.stock, pred.stock, ego.profile))
         self.min_safe_gap_m = max(f.d_min for f in self.followers.values())
         margin = self.model.margin_m  # standing behind a train: margin and position errors
         standstill = {fid: max(f.d_min, margin) + 2.0 for fid, f in self.followers.items()}
@@ -299,6 +304,10 @@ class VCDriver:
                 pst is not None and fr is not None and pst.s_m - f.pred.stock.length_m <= fr.shared_end_a_m and st.s_m <= fr.shared_end_b_m
                 and (pst.s_m + fr.offset_m) - f.pred.stock.length_m > st.s_m  # the predecessor is ahead
                 and (st.leader in (None, f.pred.id) or st.gap_m >= (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m - 1.0)  # no train between (else SUMO drives it)
+                # before its predecessor has reached a merge where their routes meet, only with it virtually ahead by the spacing
+                # its stack keeps and the safe separation: on another track it is in no conflict with it but at the junction
+                and (f.coupled or pst.s_m > fr.shared_start_a_m + 1e-6 or (pst.s_m + fr.offset_m) - f.pred.stock.length_m - st.s_m >= max(
+                    self.coupled_spacing_m(fid, st.speed_mps), f.rule.required_gap(st.s_m, st.speed_mps, pst.s_m + fr.offset_m, pst.speed_mps, self.model.dead_time_s)))
             )
             # station stops are SUMO's (see module doc)
             while f.next_stop < len(f.stops_m) and st.s_m > f.stops_m[f.next_stop] + 1.0:

@@ -30,6 +30,9 @@ import numpy as np
 import pandas as pd
 
 from vcsumo.control.channel import Channel
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import SeparationModel, RelativeBraking
+from vcsumo.sim.health import GAP_TOLERANCE_M
 from vcsumo.route_profile import RouteProfile
 from vcsumo.sim.offline import run_convoy
 from vcsumo.studies.experiment_build import Setup, build_setup
@@ -64,13 +67,26 @@ class RunResult:
 
     @property
     def healthy(self) -> bool:
-        """No collision, where a CBF reports it the true barrier never positive, and no train above the
-        track's permitted speed by more than the run-health tolerance (``OVERSPEED_TOLERANCE_KMH``)."""
+        """No collision, where a CBF reports it the true barrier never positive, no train above the
+        track's permitted speed by more than the run-health tolerance (``OVERSPEED_TOLERANCE_KMH``), and
+        no follower with vcsumo's separation guard below the safe separation (:meth:`below_separation`)."""
         m = self.measurements
         coll = m[m.quantity == "collisions"].value.sum()
         tb = m[m.quantity == "true_barrier_max_m"].value
         over = m[m.quantity == "overspeed_max_kmh"].value
-        return bool(coll == 0 and not (tb > 0).any() and not (over > OVERSPEED_TOLERANCE_KMH).any())
+        return bool(coll == 0 and not (tb > 0).any() and not (over > OVERSPEED_TOLERANCE_KMH).any() and not self.below_separation())
+
+    def below_separation(self, guarded: bool = True) -> list[str]:
+        """Followers below the run-health monitor's safe separation, with their episodes and smallest
+        margin; ``guarded``: only those whose stack has the separation guard (one without it, ``guard:
+        false``, runs a paper's own architecture: measured, not judged by vcsumo's rule)."""
+        m = self.measurements
+        guard = {t.id: t.guard for t in self.experiment.trains[1:]}
+        out = []
+        for r in m[(m.quantity == "separation_violations") & (m.value > 0)].itertuples():
+            if guard.get(r.train, True) == guarded:
+                out.append(f"{r.train} {int(r.value)} episode{'s' if r.value != 1 else ''}, margin {self.value('min_margin_m', r.train):.1f} m")
+        return out
 
     def overspeeding(self) -> list[str]:
         """The trains above the permitted speed by more than the tolerance, with their largest excess."""
@@ -92,6 +108,24 @@ def overspeed_rows(profile: RouteProfile, pos: np.ndarray, speed: np.ndarray, id
         excess = (speed[:, i] - limit) * 3.6
         rows.append((tid, "", "overspeed_max_kmh", float(max(excess.max(), 0.0)), "km/h"))
         rows.append((tid, "", "overspeed_steps", float(np.sum(excess > OVERSPEED_TOLERANCE_KMH)), "-"))
+    return rows
+
+
+def separation_rows(profile: RouteProfile, arr: dict, stocks: list, model: SeparationModel, step_s: float, ids: list[str]) -> list[tuple[str, str, str, float, str]]:
+    """Per follower, the run-health monitor's separation rule on the true states at every step (relative
+    braking behind the train ahead, :meth:`~vcsumo.signalling.separation.RelativeBraking.required_gap`
+    with the set's dead time): the smallest margin (gap − safe separation), the episodes below it (1 cm
+    tolerance, as the monitor) and the time below it."""
+    rows = []
+    for i in range(1, len(ids)):
+        rule = RelativeBraking(model, stocks[i], stocks[i - 1], profile)
+        pos, v = arr["pos"], arr["speed"]
+        req = np.array([rule.required_gap(pos[k, i], v[k, i], pos[k, i - 1], v[k, i - 1], model.dead_time_s) for k in range(len(arr["t"]))])
+        margin = arr["gap_fr"][:, i - 1] - req
+        below = margin < -GAP_TOLERANCE_M
+        episodes = int(np.sum(below[1:] & ~below[:-1]) + (below[0] if len(below) else 0))
+        rows += [(ids[i], "", "min_margin_m", float(margin.min()) if len(margin) else math.nan, "m"),
+                 (ids[i], "", "separation_violations", float(episodes), "-"), (ids[i], "", "below_separation_time_s", float(below.sum() * step_s), "s")]
     return rows
 
 
@@ -135,6 +169,7 @@ def run_experiment(exp: Experiment, seed: int, base_dir: Path | None = None, pat
     brake = setup.leader_driver.braking_since_s if isinstance(setup.leader_driver, LeaderEvents) else None
     rows = measure(exp, arr, ids, true_lengths, setup.followers, timers, brake, rec.packets, channel if exp.channel is not None else None)
     rows += overspeed_rows(setup.profile, arr["pos"], arr["speed"], ids, true_lengths)
+    rows += separation_rows(setup.profile, arr, setup.stocks, SeparationModel(load_assumptions()), exp.step_s, ids)
     rows += [("", "", "steps", float(len(arr["t"])), "-"), ("", "", "end_time_s", run.end_time_s, "s"), ("", "", "wall_time_s", wall, "s"),
              ("", "", "cpu_time_s", cpu, "s")]
     name = f"{variant}-seed{seed}"

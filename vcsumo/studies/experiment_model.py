@@ -49,7 +49,7 @@ class TrainSpec(StrictModel):
     id: str = Field(pattern=NAME, description="Train id (1–60 letters, digits, _ . -)")
     stock: str | StockSpec = Field(description="Rolling stock: a shipped name, a path, or a base with overrides")
     position_m: float | None = Field(default=None, ge=0, le=2e6, description="Front position on the track at t = 0, m")
-    gap_m: float | Literal["coupled"] | None = Field(default=None, description="Front-to-rear gap to the train ahead at t = 0, m (0–100 km), or 'coupled': on the follower's own reference (cruise: z_τ2 of eq. 27; other controllers: their coupled spacing)")
+    gap_m: float | Literal["coupled"] | None = Field(default=None, description="Front-to-rear gap to the train ahead at t = 0, m (0–100 km), or 'coupled': on the follower's own reference (cruise: z_τ2 of eq. 27; other controllers: their coupled spacing, never inside their CBF's barrier or their guard's safe separation)")
     speed_mps: float = Field(default=0.0, ge=0, le=170, description="Speed at t = 0, m/s (0–170)")
     plant: Literal["nominal", "sampled", "corner"] = Field(default="nominal", description="The plant's true parameters: the nominal ones, drawn uniformly in the uncertainty box, or at a random corner of it (seeded)")
     controller: str | None = Field(default=None, description="Followers: registered controller stack NAME[:PARAMS] (e.g. cbf-cruise, mpc:mpc_felez2019)")

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Callable, Literal
@@ -57,6 +58,9 @@ from vcsumo.sim.network import BuiltNetwork
 from vcsumo.studies.capacity_route import Case, analytic_headway, check_position_m, convoy_spacing, leader_run, route_setup
 from vcsumo.sim.convoy_plan import load_channel
 
+STANDSTILL_EXTRA_M = 2.0
+"""A convoy's members stand the separation model's margin + this apart in a platform (the VC driver's
+standstill gap), m."""
 SWEPT = ("t2t_delay_bound_s", "braking_uncertainty", "position_error_m")
 """Assumptions the study sweeps (fields of :class:`~vcsumo.signalling.assumptions.AssumptionSet`)."""
 GRID = "grid"
@@ -88,11 +92,11 @@ BREAKEVEN_COLUMNS = ["parameter", "convoy_size", "breakeven_value", "searched_up
 CHECK_COLUMNS = [
     "parameter", "value", "regime", "controller", "convoy_size", "headway_analytic_s", "headway_sim_s", "deviation_pct",
     "capacity_analytic_trains_per_h", "capacity_sim_trains_per_h", "healthy", "gap_violations", "collisions", "min_margin_m",
-    "below_separation_time_s", "overspeed_events", "beyond_service_brakings", "authority_overruns", "stops_skipped", "emergency_brakes",
-    "simulations", "error",
+    "below_separation_time_s", "overspeed_events", "beyond_service_brakings", "authority_overruns", "stops_skipped", "short_dwells",
+    "sumo_emergency_stops", "emergency_brakes", "simulations", "error",
 ]
 HEALTH_COUNTERS = ("gap_violations", "collisions", "min_margin_m", "below_separation_time_s", "overspeed_events", "beyond_service_brakings",
-                   "authority_overruns", "stops_skipped", "emergency_brakes", "simulations")
+                   "authority_overruns", "stops_skipped", "short_dwells", "sumo_emergency_stops", "emergency_brakes", "simulations")
 """Counters of the simulated check, as the capacity study reports them (:mod:`vcsumo.sim.health`)."""
 
 ConvoySize = Annotated[int, Field(ge=2, le=8, description="Trains in a VC convoy (2–8)")]
@@ -366,6 +370,24 @@ def load_inputs(cfg: TradeoffConfig) -> tuple[Line, RollingStock, AssumptionSet]
     return line, stock, load_assumptions(cfg.assumptions)
 
 
+def convoys_longer_than_platforms(stops: list[tuple[str, str, float, float, float]], stock: RollingStock, convoy_sizes: list[int],
+                                  standstill_gap_m: float) -> list[str]:
+    """All-stops: one warning per VC convoy size whose members, standing ``standstill_gap_m`` apart,
+    are longer than a platform it stops at (``stops``: :attr:`RouteSetup.stops_full`).  The analytic
+    VC headway stands the convoy in the platform as one train; such a convoy's followers stop one
+    after another, so its figure is a bound the line cannot run (the capacity study simulates it)."""
+    out = []
+    for n in sorted(set(convoy_sizes)):
+        length = n * stock.length_m + (n - 1) * standstill_gap_m
+        short = sorted({(st, plen) for st, _, _, _, plen in stops if plen + 1e-6 < length})
+        if short:
+            names = ", ".join(f"{st} ({plen:g} m)" for st, plen in short)
+            out.append(f"all-stops: a VC convoy of {n} ({n} × {stock.length_m:g} m + {n - 1} × {standstill_gap_m:g} m standstill gap = "
+                       f"{length:g} m) does not fit the platform of {names}; the analytic rule stands it there as one train, so VC n={n} "
+                       "is an upper bound the line cannot run (its members stop one after another: vcsumo study capacity simulates it)")
+    return out
+
+
 def run_tradeoff_study(cfg: TradeoffConfig, out: Path, progress: Callable[[int, int, str], None] | None = None) -> TradeoffResult:
     """The whole study into the results folder ``out`` (written whole or not at all)."""
     from vcsumo.control.registry import parse_controller
@@ -381,8 +403,13 @@ def run_tradeoff_study(cfg: TradeoffConfig, out: Path, progress: Callable[[int, 
     line, stock, base = load_inputs(cfg)
     net = build_network(line, cfg.block_length_m)
     tl = TradeoffLine(line, net, stock, cfg.direction, cfg.pattern, cfg.step_length_s, cfg.vc_step_length_s, vc_controller=cfg.controller)
-    if cfg.pattern == "all-stops" and not route_setup(line, net, stock, cfg.direction, cfg.step_length_s, SeparationModel(base)).stops_full:
-        raise InputError(None, "--pattern", f"all-stops: {line.name} has no intermediate station after the release point in direction {cfg.direction}")
+    if cfg.pattern == "all-stops":
+        model = SeparationModel(base)
+        stops = route_setup(line, net, stock, cfg.direction, cfg.step_length_s, model).stops_full
+        if not stops:
+            raise InputError(None, "--pattern", f"all-stops: {line.name} has no intermediate station after the release point in direction {cfg.direction}")
+        for msg in convoys_longer_than_platforms(stops, stock, cfg.convoy_sizes, model.margin_m + STANDSTILL_EXTRA_M):
+            warnings.warn(msg, stacklevel=2)
     params = {**cfg.model_dump(mode="json"), "train": stock.name, "assumptions": base.record(), "rule_inputs": {k: sorted(v) for k, v in RULE_INPUTS.items()}}
     with ResultsFolder(out, inputs={"line": line.path}, seed=cfg.seed, params=params) as rf:
         table = tradeoff_table(tl, base, cfg.sweeps(), cfg.convoy_sizes, cfg.grid, progress)
