@@ -165,7 +165,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     topo = scn.network.topology
     # SUMO leaves the separation model's margin and position errors behind a standing train (a convoy
     # follower berths that far behind its leader in a shared platform)
-    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo, SeparationModel(scn.assumptions).margin_m))
+    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo, SeparationModel(scn.assumptions).margin_m, scn.assumptions.position_error_m))
     begin = math.floor(min(t.depart_s for t in scn.trains))
     if scn.end_time_s is not None:
         end = scn.end_time_s
