@@ -436,20 +436,14 @@ def check_convoy_times(trains: list[PlannedTrain], services: list[str], path: Pa
                              f"convoy is already at its destination ({format_clock(arrival(first))}): they never run together, so they never couple")
 
 
-END_OF_TRACK_WINDOW_M = 100.0
-"""A train whose route ends at an open end of track arrives when it stands within this distance (or its
-own length, or its position error + :data:`END_OF_TRACK_SHORT_M`, if longer) of the end, m:
-braking-curve supervision stops it its position error short of the end (10 m under etcs_typical), so
-SUMO's stop there spans this window."""
-END_OF_TRACK_SHORT_M = 90.0
-"""How far short of its supervised stopping point (its position error short of the end of track) a
-train standing there has still arrived, m."""
+END_OF_TRACK_WINDOW_M, END_OF_TRACK_SHORT_M = 100.0, 90.0
+"""A train whose route ends at an open end of track arrives when it stands within 100 m (or its own
+length, or its position error + 90 m, if longer) of the end, m: braking-curve supervision stops it its
+position error (``routes_xml``'s ``position_error_m``) short of the end, so SUMO's stop spans this window."""
 
 
 def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.0, position_error_m: float = 0.0) -> str:
-    """SUMO route file: vTypes (open-air and tunnel variants) and vehicles sorted by departure.
-    ``position_error_m``: the assumption set's odometry error (the supervision stops a train that far
-    short of an open end of track, where its end stop's window must take it)."""
+    """SUMO route file: vTypes (open-air and tunnel variants) and vehicles sorted by departure."""
     factors = sorted({e.tunnel_factor for e in topo.edges.values()})
     stocks = {t.stock.name: t.stock for t in trains}
     out = ["<routes>"]
