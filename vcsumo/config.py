@@ -16,10 +16,10 @@ import difflib
 import re
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator, TypeVar
+from typing import Any, Callable, Iterator, Literal, TypeVar, get_args, get_origin
 
 import yaml
-from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, field_validator
 
 from vcsumo.errors import InputError
 
@@ -44,12 +44,30 @@ def unique_ids(model: M, *lists: str) -> M:
     return model
 
 
+def _admits_bool(annotation: Any) -> bool:
+    """Whether a field's type takes a boolean (bool, Any, a Literal of one, a union with one)."""
+    if annotation is bool or annotation is Any:
+        return True
+    if get_origin(annotation) is Literal:
+        return any(isinstance(a, bool) for a in get_args(annotation))
+    return any(_admits_bool(a) for a in get_args(annotation) if a is not Ellipsis)
+
+
 class StrictModel(BaseModel):
     """Base for every configuration model: unknown keys are errors, objects are immutable."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
     """``allow_inf_nan=False``: no physical quantity of a vcsumo input is infinite or NaN, so ``.inf``
     and ``.nan`` in a file are errors (``none`` switches an optional limit off)."""
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_number(cls, value: Any, info: ValidationInfo) -> Any:
+        """A boolean is no number: pydantic would read ``overlap_m: on`` (YAML 1.1: on/off/yes/no are
+        booleans) as 1 and ``off`` as 0."""
+        if isinstance(value, bool) and info.field_name in cls.model_fields and not _admits_bool(cls.model_fields[info.field_name].annotation):
+            raise ValueError(f"'{str(value).lower()}' is a boolean (YAML reads true/false, yes/no, on/off so), not a value of this field")
+        return value
 
 
 _UNION_MEMBERS = frozenset({"str", "int", "float", "bool", "list", "dict", "none", "constrained-str", "constrained-float", "constrained-int"})

@@ -436,13 +436,13 @@ def check_convoy_times(trains: list[PlannedTrain], services: list[str], path: Pa
                              f"convoy is already at its destination ({format_clock(arrival(first))}): they never run together, so they never couple")
 
 
-END_OF_TRACK_WINDOW_M = 100.0
-"""A train whose route ends at an open end of track arrives when it stands within this distance (or its
-own length, if longer) of the end, m: braking-curve supervision stops it its position error short of
-the end (10 m under etcs_typical), so SUMO's stop there spans this window."""
+END_OF_TRACK_WINDOW_M, END_OF_TRACK_SHORT_M = 100.0, 90.0
+"""A train whose route ends at an open end of track arrives when it stands within 100 m (or its own
+length, or its position error + 90 m, if longer) of the end, m: braking-curve supervision stops it its
+position error (``routes_xml``'s ``position_error_m``) short of the end, so SUMO's stop spans this window."""
 
 
-def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.0) -> str:
+def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.0, position_error_m: float = 0.0) -> str:
     """SUMO route file: vTypes (open-air and tunnel variants) and vehicles sorted by departure."""
     factors = sorted({e.tunnel_factor for e in topo.edges.values()})
     stocks = {t.stock.name: t.stock for t in trains}
@@ -456,7 +456,7 @@ def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.
         arrival_pos = t.end_pos_m or topo.edges[t.edges[-1]].length_m
         end_stop = t.final_stop is None and t.end_pos_m is not None and t.stop_at_end
         if end_stop:  # stopped short of the end of track (by its position error, under supervision), the train has arrived
-            arrival_pos = max(0.0, t.end_pos_m - max(t.stock.length_m, END_OF_TRACK_WINDOW_M))
+            arrival_pos = max(0.0, t.end_pos_m - max(t.stock.length_m, END_OF_TRACK_WINDOW_M, position_error_m + END_OF_TRACK_SHORT_M))
         out.append(
             f'  <vehicle id={quoteattr(t.id)} type="{t.stock.vtype_id(first_tf)}" depart="{t.depart_s:.2f}" '
             f'departPos="{t.depart_pos_m:.3f}" departSpeed="{speed}" arrivalPos="{arrival_pos:.3f}" line={quoteattr(t.service)}>'

@@ -148,6 +148,11 @@ def _two_line_width(text: str) -> int:
     return min(max(cell_len(" ".join(words[:k])), cell_len(" ".join(words[k:]))) for k in range(1, len(words)))
 
 
+HEALTH_COUNTERS = ("gap_violations", "collisions", "stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings",
+                   "authority_overruns", "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings", "teleports")
+"""Columns of a study row that make it not healthy when not 0 (named in the table's note)."""
+
+
 def build_table(df: pd.DataFrame, title: str, columns: list[str] | None = None, width: int = PIPE_WIDTH,
                 csv_path: Path | str | None = None, drop_first: list[str] | None = None) -> tuple[Table, list[str]]:
     """The table of ``columns`` of ``df`` fitting ``width`` terminal columns, and the notes to print
@@ -169,7 +174,8 @@ def build_table(df: pd.DataFrame, title: str, columns: list[str] | None = None, 
         if err:
             notes.append(f"failed: {_row_key(row, cols, numeric)}: {err}")
         elif str(row.get("healthy", "")) == "False":
-            notes.append(f"not healthy: {_row_key(row, cols, numeric)}")
+            why = [f"{c} {row[c]:g}" for c in HEALTH_COUNTERS if c in row.index and isinstance(row[c], (int, float)) and row[c] == row[c] and row[c] != 0]
+            notes.append(f"not healthy: {_row_key(row, cols, numeric)}" + (f" ({', '.join(why)})" if why else ""))
 
     def need(c: str) -> int:
         words = max((cell_len(w) for w in label(c).split()), default=1)

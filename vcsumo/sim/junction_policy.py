@@ -117,7 +117,8 @@ class JunctionPolicy:
         hide = [fid for fid in self._members if fid in snap.trains and fid not in self.linked]
         if not hide:
             return snap
-        return Snapshot(snap.time_s, snap.step_s, {k: v for k, v in snap.trains.items() if k not in hide}, snap.junction_authority_m)
+        return Snapshot(snap.time_s, snap.step_s, {k: v for k, v in snap.trains.items() if k not in hide}, snap.junction_authority_m,
+                        snap.handover_authority_m)
 
     def limit(self, snap: Snapshot, commands: dict[str, float], delivered: Callable[[str], Mapping[str, Message]],
               spacing: Callable[[str, float], float] | None = None) -> dict[str, float]:

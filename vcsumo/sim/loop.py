@@ -165,7 +165,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     topo = scn.network.topology
     # SUMO leaves the separation model's margin and position errors behind a standing train (a convoy
     # follower berths that far behind its leader in a shared platform)
-    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo, SeparationModel(scn.assumptions).margin_m))
+    (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo, SeparationModel(scn.assumptions).margin_m, scn.assumptions.position_error_m))
     begin = math.floor(min(t.depart_s for t in scn.trains))
     if scn.end_time_s is not None:
         end = scn.end_time_s
@@ -430,14 +430,16 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
             if driver is not None:
                 t0 = time.perf_counter()
                 snap = StepTrains(t, {r[0]: (r[1].plan.profile, r[2], r[3], r[4], r[5], r[6][0] if r[6] else None, r[7]) for r in rows})
-                ends = {}
-                if locking is not None:  # what the approach locking allows each convoy follower at the merges ahead
-                    for r in rows:
-                        pred = driver.predecessor_of(r[0])
-                        d_ma = locking.authority_distance(r[0], r[2], coupled_to=pred) if pred is not None else math.inf
+                ends, handover = {}, {}
+                for r in rows:
+                    pred = driver.predecessor_of(r[0])
+                    if pred is not None and locking is not None:  # what the approach locking allows each convoy follower at the merges ahead
+                        d_ma = locking.authority_distance(r[0], r[2], coupled_to=pred)
                         if d_ma < math.inf:
                             ends[r[0]] = d_ma
-                commands = driver.make_step(Snapshot(t, dt, snap, ends))
+                    if pred is not None and supervisor is not None and r[6]:  # the authority it gets if handed to SUMO (report age, fixed times)
+                        handover[r[0]] = supervisor.authority_distance(r[0], r[2], r[7], r[6][0], t)
+                commands = driver.make_step(Snapshot(t, dt, snap, ends, handover))
                 timing["controller_s"] += time.perf_counter() - t0
                 for vid, until in stop_holds().items():  # a follower behind it in the platform has not served its dwell
                     if vid in state and sim.at_stop(vid):

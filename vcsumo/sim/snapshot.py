@@ -67,6 +67,11 @@ class Snapshot:
     """Distance from a convoy follower's front to the end of movement authority a merging junction
     ahead sets (approach locking, :meth:`vcsumo.sim.interlocking.MergeLocking.authority_distance`
     behind its predecessor), m; absent: none."""
+    handover_authority_m: dict[str, float] = field(default_factory=dict)
+    """Distance from a convoy follower's front to the end of movement authority the braking-curve
+    supervision would give it were SUMO to drive it (the regime's rule behind the train ahead, with
+    the assumption set's report period and fixed times), m: it may be handed over only within it;
+    absent: no limit."""
 
 
 class Driver(Protocol):

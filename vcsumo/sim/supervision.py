@@ -323,7 +323,6 @@ class BrakingCurveSupervisor:
         c = self.curves.get(train_id)
         if c is None:
             return Permitted(math.inf, "")
-        a_set = self.model.assumptions
         dt = self.step_s
         dead = self._dead_s
         rs = c.restriction_s
@@ -348,8 +347,9 @@ class BrakingCurveSupervisor:
             nearest = rs[k0] - s_m
         if c.next_stop < len(stops) and stops[c.next_stop] - s_m < nearest:
             nearest = stops[c.next_stop] - s_m
-        if c.end_s is not None and c.end_s - s_m < nearest:
-            nearest = c.end_s - s_m
+        end_target = c.end_s - self._pos_err if c.end_s is not None else math.inf  # stopped its position error short of the end
+        if end_target - s_m < nearest:
+            nearest = end_target - s_m
         if s_m >= 0.0 and nearest > 1.3 * c.braking.stopping_bound(v_mps, dead + 2 * dt) + 50.0:
             return Permitted(math.inf, "", d_ma)
         best, reason = math.inf, ""
@@ -374,8 +374,8 @@ class BrakingCurveSupervisor:
                 vp = max(creep, br.permitted_speed(s_m, s_t, 0.0, 1.5 * dt, v_mps))
                 if vp < best:
                     best, reason = vp, "stop"
-        if c.end_s is not None and c.end_s - s_m <= reach:
-            vp = br.permitted_speed(s_m, c.end_s - a_set.position_error_m, 0.0, dead + 1.5 * dt, v_mps)
+        if end_target - s_m <= reach:
+            vp = br.permitted_speed(s_m, end_target, 0.0, dead + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "end"
         if d_ma <= reach:

@@ -335,8 +335,11 @@ class VCDriver:
                         # hand-over to SUMO below keeps to the rear where it is
                         stop_target = min(s_stop, stand - f.pred.stock.length_m - self.model.margin_m)
                 # hand over to SUMO (and its supervision) once the absolute rule holds behind the predecessor
-                # and the stop curve can still stop the train there: the run-health monitor then checks it so
-                absolute_ok = s_pred_rear - st.s_m >= self.model.margin_m + f.braking.stopping_distance(st.s_m, v, self.model.dead_time_s)
+                # and the stop curve can still stop the train there: the run-health monitor then checks it so;
+                # and within the authority the supervision will give it (built from the predecessor's position
+                # a report period and the fixed times ago: handed over beyond it, it would overrun it at once)
+                absolute_ok = s_pred_rear - st.s_m >= self.model.margin_m + f.braking.stopping_distance(st.s_m, v, self.model.dead_time_s) \
+                    and snap.handover_authority_m.get(fid, math.inf) >= f.braking.stopping_distance(st.s_m, v, self.model.dead_time_s + 1.5 * self.step_s)
                 if f.at_stop or (stop_target is not None and absolute_ok and to_stop >= stopping - 1.0):
                     if not f.at_stop:
                         f.stop_handovers += 1

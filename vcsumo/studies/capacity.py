@@ -80,7 +80,8 @@ CAPACITY_COLUMNS = [
     "line", "direction", "regime", "controller", "convoy_size", "stopping_pattern", "critical_section_km", "headway_sim_s",
     "headway_analytic_s", "intra_convoy_gap_m", "coupled_gap_model_m", "coupled_gap_level_m", "coupled_spacing_m", "convoy_formed", "release_speed_kmh", "capacity_trains_per_h", "gain_vs_fbs",
     "healthy", "min_gap_m", "min_margin_m", "gap_violations", "below_separation_time_s", "collisions", "max_impact_kmh", "stops_skipped",
-    "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops", "unhealthy_probes", "assumptions",
+    "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops",
+    "sumo_emergency_brakings", "sumo_stop_warnings", "teleports", "unhealthy_probes", "assumptions",
     "train", "release_interval_s", "deviation_pct", "block_length_m", "fixed_time_s", "emergency_brakes", "guard_interventions", "simulations",
     "wall_time_s", "sumo_time_s", "controller_time_s", "io_time_s", "error",
 ]
@@ -254,6 +255,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         "below_separation_time_s": summ["below_separation_time_s"], "max_impact_kmh": summ["max_impact_kmh"],
         "stops_skipped": summ["stops_skipped"], "short_dwells": summ["short_dwells"], "overspeed_events": summ["overspeed_events"], "beyond_service_brakings": summ["beyond_service_brakings"],
         "authority_overruns": summ["authority_overruns"], "sumo_emergency_stops": summ["sumo_emergency_stops"],
+        "sumo_emergency_brakings": summ["sumo_emergency_brakings"], "sumo_stop_warnings": summ["sumo_stop_warnings"], "teleports": summ["teleports"],
         "unhealthy_probes": unhealthy[0],
         "release_interval_s": round(h, 2), "deviation_pct": round(100.0 * (h_sim - h_an) / h_an, 2),
         "block_length_m": net.topology.block_length_m, "fixed_time_s": fixed_time_s, "emergency_brakes": summ["emergency_brakes"],
