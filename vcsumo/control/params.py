@@ -66,7 +66,7 @@ def resolve_params(spec: str | Path | None, default: str, field: str | None = "-
     name = str(spec)
     cand = controllers_dir() / f"{name}.yaml"
     if not is_file(cand):
-        avail = ", ".join(shipped_parameter_sets())
+        avail = ", ".join(shipped_parameter_sets()) or f"none in {controllers_dir()}"  # (a VCSUMO_HOME without controllers/)
         raise InputError(None, field, f"unknown {kind} settings: {kind} parameter set '{name}' not found (available: {avail}; or a path to a .yaml file)")
     return cand
 
