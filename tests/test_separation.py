@@ -294,18 +294,21 @@ def _brute_force_closing(rule, s_f, v_f, s_l, v_l, dead, dt=1e-3):
 
 def test_relative_braking_counts_a_climb_inside_the_leaders_run_and_is_continuous(typical):
     """A light follower behind a heavy leader (the follower out-brakes it on level track): a 200 m
-    climb of 25 permille lies inside the leader's braking run (and a descent behind the follower).
-    The rule's closing equals a brute-force integration of both runs (within 0.1 m) and moves
-    continuously with the trains. One deceleration per train taken at the two ends of each run (the
-    rule before) missed the climb: 8.9 m instead of 38.9 m here — unsafe — and jumped by tens of
-    metres when an end crossed a gradient change (an unseen mountain line's freight-led convoy: 93
-    to 220 m from one step to the next)."""
+    climb of 25 permille lies inside the leader's braking run (and the follower brakes on an 18
+    permille descent that ends where the climb begins). The rule's closing equals a brute-force
+    integration of both runs (within 0.1 m) and moves continuously with the trains. One deceleration
+    per train taken at the two ends of each run (the rule before) missed the climb: 8.9 m instead of
+    36.9 m here — unsafe — and jumped by tens of metres when an end crossed a gradient change (an
+    unseen mountain line's freight-led convoy: 93 to 220 m from one step to the next). (Until unseen7
+    the descent ended at 800 m, and the follower was charged it to 2,150 m all the same — the whole
+    edge its front was on when its rear was still on the descent: 38.9 m; the braking under the body
+    is now exact, and the descent runs to the climb to keep the case.)"""
     from vcsumo.signalling.separation import RelativeBraking
 
     heavy = load_rolling_stock("etr1000").model_copy(update={"name": "heavy", "emergency_brake_decel_mps2": 0.6, "service_brake_decel_mps2": 0.4,
                                                              "uncertainty": None})
     light = load_rolling_stock("regional_emu160").model_copy(update={"emergency_brake_decel_mps2": 1.2, "uncertainty": None})
-    prof = _profile([(0.0, 800.0, -0.018), (800.0, 2150.0, 0.0), (2150.0, 2350.0, 0.025), (2350.0, 2560.0, 0.0), (2560.0, 20000.0, 0.0)])
+    prof = _profile([(0.0, 800.0, -0.018), (800.0, 2150.0, -0.018), (2150.0, 2350.0, 0.025), (2350.0, 2560.0, 0.0), (2560.0, 20000.0, 0.0)])
     rule = RelativeBraking(SeparationModel(typical), light, heavy, prof)
     assert not rule.never_outbrakes
     dead = typical.dead_time_s

@@ -143,8 +143,10 @@ def test_a_follower_braking_on_its_service_brake_up_a_steep_climb_is_healthy_wit
         v0 = r.speed_mps + r.decel_mps2 * STEP_S
         brake = -(-r.decel_mps2 - acceleration(p, v0, 0.0, 0.025)) * p.rotating_mass_factor
         assert 0.45 <= brake <= 1.1 * stock.service_brake_decel_mps2  # (the top of its box under the etcs_typical set)
-    if controller == "mpc":  # one of the warnings is of a step the controller drove (SUMO's cap off), one of SUMO's service braking
-        assert set(written.driven_by_sumo) == {False, True}
+    if controller == "mpc":  # the warnings are of steps the controller drove (SUMO's cap off): since unseen7 the follower is
+        # handed to SUMO for its stop only within the MB authority the supervision gives it (auth 189 m < 229 m of stopping
+        # distance at 13 m/s, 390 s: it was handed over then, and SUMO's service braking to the cap warned once, explained)
+        assert set(written.driven_by_sumo) == {False}
 
 
 @pytest.mark.sumo

@@ -249,12 +249,21 @@ class RouteBraking:
         if box is not None:
             self.params_high = self.params_high.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
         self.rho = 1.0 if strongest else stock.rotating_mass_factor
-        starts = np.asarray(profile.starts_m, dtype=float)
-        lengths = np.asarray(profile.lengths_m, dtype=float)
+        # pieces: the route's edges, cut also where the rear passes a gradient change (front there + the
+        # train's length), so the gradient under the body is the same all along each piece (an edge
+        # as long as a long block would otherwise carry a descent its rear left a kilometre before)
+        edge_starts = np.asarray(profile.starts_m, dtype=float)
+        end = float(edge_starts[-1] + profile.lengths_m[-1])
+        grads = np.asarray(profile.gradients, dtype=float)
+        rear_cuts = edge_starts[1:][grads[1:] != grads[:-1]] + stock.length_m
+        starts = np.unique(np.concatenate([edge_starts, rear_cuts[rear_cuts < end]]))
+        lengths = np.diff(np.append(starts, end))
+        # the body over [x − L, x) for every front x on the piece (1 µm inside its ends: a rear at a change is past it)
+        body = [(x - stock.length_m + 1e-6, x + ln - 1e-6) for x, ln in zip(starts, lengths)]
         if strongest:  # the steepest up-grade under the body helps the train ahead; a descent is not counted
-            g_low = np.array([max(profile.gradient_range(x - stock.length_m, x + ln - 1e-6)[1], 0.0) for x, ln in zip(starts, lengths)])
-        else:  # the lowest gradient under the body while the front is on the edge (not the next one)
-            g_low = np.array([min(profile.gradient_range(x - stock.length_m, x + ln - 1e-6)[0], 0.0) for x, ln in zip(starts, lengths)])
+            g_low = np.array([max(profile.gradient_range(a, b)[1], 0.0) for a, b in body])
+        else:  # the lowest gradient under the body while the front is on the piece
+            g_low = np.array([min(profile.gradient_range(a, b)[0], 0.0) for a, b in body])
         self.x = np.concatenate([starts, [starts[-1] + lengths[-1]]])
         self.g_low = g_low
         self.grade_integral = np.concatenate([[0.0], np.cumsum(g_low * lengths)])

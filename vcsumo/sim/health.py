@@ -43,6 +43,10 @@ GAP_TOLERANCE_M = 0.01
 """Numerical tolerance of the separation test, m."""
 DECEL_TOLERANCE_MPS2 = 0.02
 """Braking counted beyond the service rate above the strongest service deceleration plus this, m/s²."""
+SPEED_ROUNDING_MPS = 1e-3
+"""Overspeed is counted above the permitted speed + the set's tolerance + this, m/s: SUMO's network
+stores lane speeds rounded (16.6667 m/s for 60 km/h), and a train held at its lane's limit is not
+overspeeding under a tolerance of 0."""
 AUTHORITY_TOLERANCE_M = 0.5
 """A front more than this past its end of movement authority is an overrun, m."""
 STANDING_MPS = 0.05
@@ -148,7 +152,7 @@ class HealthMonitor:
             except ValueError as exc:  # its brake does not hold it on a descent of its route: no run of it can be safe
                 raise VcsumoError(f"infeasible: train {t.id}: {exc} of its route under the assumption set '{model.assumptions.name}'") from None
         self.relative: dict[tuple[str, str], RelativeBraking] = {}
-        self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6
+        self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6 + SPEED_ROUNDING_MPS
         self.collision_rows: list[tuple] = []
         # the hardest service braking without resistance and grade: braking at most this is never beyond service
         self._top_speed = {t.id: t.stock.max_speed_ms for t in trains}

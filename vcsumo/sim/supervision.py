@@ -73,6 +73,11 @@ class _Curves:
     end_s: float | None
     signals: list[float]
     braking: RouteBraking
+    """The train's guaranteed service braking: its station stops and speed restrictions (and, being
+    the weaker brake, every reach bound)."""
+    authority: RouteBraking
+    """Its braking under the absolute rule (the set's ``absolute_braking``): the end of movement
+    authority and the end of the track."""
     restriction_s: list[float] = field(default_factory=list)
     """Positions of ``restrictions`` (for a bisection)."""
     next_stop: int = 0
@@ -144,7 +149,7 @@ class BrakingCurveSupervisor:
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
         kind = model.assumptions.absolute_braking
         braking_of = braking
-        shared: dict[tuple[int, int], RouteBraking] = {}
+        shared: dict[tuple, RouteBraking] = {}
         for t in trains:
             at = [(x.s_m, x.platform_length_m) for x in t.stops]
             if t.final_stop is not None:
@@ -159,12 +164,14 @@ class BrakingCurveSupervisor:
             try:  # the trains' braking under the absolute rule (``braking``: already built, e.g. the health monitor's)
                 braking = (braking_of or {}).get(t.id) or shared.get((id(t.stock), id(t.profile))) \
                     or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile, kind))
+                service = braking if kind == "service" else shared.get((id(t.stock), id(t.profile), "service")) \
+                    or shared.setdefault((id(t.stock), id(t.profile), "service"), RouteBraking(model, t.stock, t.profile, "service"))
             except ValueError:
                 g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
                 raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
                                   f"({1000 * g_low:.1f} ‰) under the assumption set '{model.assumptions.name}'") from None
             restrictions = t.profile.restriction_targets()
-            self.curves[t.id] = _Curves(t, restrictions, stops, end_s, sorted((signals or {}).get(t.id, [])), braking,
+            self.curves[t.id] = _Curves(t, restrictions, stops, end_s, sorted((signals or {}).get(t.id, [])), service, braking,
                                         [x for x, _ in restrictions], platform_from=[x - length if length > 0 else x for x, length in at])
 
         v_cap = max(t.stock.max_speed_ms for t in trains) * 1.2 + 10.0 if trains else 0.0
@@ -375,11 +382,11 @@ class BrakingCurveSupervisor:
                 if vp < best:
                     best, reason = vp, "stop"
         if end_target - s_m <= reach:
-            vp = br.permitted_speed(s_m, end_target, 0.0, dead + 1.5 * dt, v_mps)
+            vp = c.authority.permitted_speed(s_m, end_target, 0.0, dead + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "end"
         if d_ma <= reach:
-            vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, dead + 1.5 * dt, v_mps)
+            vp = c.authority.permitted_speed(s_m, s_m + d_ma, 0.0, dead + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "authority"
         return Permitted(best, reason, d_ma)
