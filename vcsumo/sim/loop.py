@@ -20,9 +20,8 @@ assumptions are a named set (``Scenario.assumptions``), recorded in the summary.
 Everything is written into the run's folder as tidy CSV plus SUMO's own outputs.
 
 If SUMO fails during the run (an error it stops on, or the simulation closed), :func:`simulate`
-raises one :class:`~vcsumo.errors.SumoError` naming the line file, the network file and the
-simulation time; the caller's :class:`~vcsumo.results.ResultsFolder` then removes the partial
-folder, so no half-written results remain.
+raises one :class:`~vcsumo.errors.SumoError` naming the line file, the network file and the time;
+the caller's :class:`~vcsumo.results.ResultsFolder` then removes the partial folder.
 """
 
 from __future__ import annotations

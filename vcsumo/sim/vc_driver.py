@@ -28,8 +28,7 @@
 Convoy leaders and trains outside convoys stay with SUMO (moving block).  A follower is coupled
 while its predecessor is on the part of its route they share (through a merge, the gap is the
 difference of their distances to the merge point; before its predecessor has reached the merge only
-once that puts it virtually ahead by the spacing the follower's stack keeps and the safe separation);
-after a split it is handed back to SUMO.
+once that puts it virtually ahead by its stack's spacing and the safe separation); split: to SUMO.
 
 Stations.  Convoy members leaving the same platform together depart at the leader's time, the
 follower standing behind the leader at its standstill gap (the convoy stands in the platform as
