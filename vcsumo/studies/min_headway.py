@@ -35,7 +35,8 @@ class Probe:
     speed_deficit: dict[str, float] = field(default_factory=dict)
     """Largest speed deficit (unhindered − actual) before each measuring point, m/s."""
 
-    def compute_speed_deficits(self, points_m: dict[str, float], traces: dict[str, tuple[list[float], list[float]]], order: list[str], start_delays: dict[str, float], rel_tol: float = 0.005, abs_tol_mps: float = 0.3, pairs: list[tuple[str, str]] | None = None, min_speed_mps: float = 0.0) -> None:
+    def compute_speed_deficits(self, points_m: dict[str, float], traces: dict[str, tuple[list[float], list[float]]], order: list[str], start_delays: dict[str, float], rel_tol: float = 0.005, abs_tol_mps: float = 0.3, pairs: list[tuple[str, str]] | None = None, min_speed_mps: float = 0.0,
+                               start_tolerance_s: float = 0.5) -> None:
         """Speed deficit before each point, normalised so that a value above 0 means hindered.
 
         Positions where the reference runs slower than ``min_speed_mps`` (the last metres of a
@@ -43,7 +44,9 @@ class Probe:
         two sampled runs) are left to the lost-time check.
 
         Each train is compared with its reference (by default the first train of ``order``; for
-        convoys ``pairs`` gives (train, same member of the first convoy)).
+        convoys ``pairs`` gives (train, same member of the first convoy)).  A train whose start was
+        delayed by more than ``start_tolerance_s`` is hindered (SUMO inserts a train at the first step
+        at or after its departure: at least one step length, or a coarse step is hindrance itself).
         """
         import numpy as np
 
@@ -52,7 +55,7 @@ class Probe:
             worst = -math.inf
             for tid, ref_id in pairs:
                 ref = traces.get(ref_id)
-                if ref is None or tid not in traces or start_delays.get(tid, 0.0) > 0.5:
+                if ref is None or tid not in traces or start_delays.get(tid, 0.0) > start_tolerance_s:
                     worst = math.inf
                     break
                 rs, rv = np.asarray(ref[0]), np.asarray(ref[1])
