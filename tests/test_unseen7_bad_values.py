@@ -56,6 +56,8 @@ def test_a_bad_assumption_set_is_one_error_line_and_nothing_written(in_tmp, caps
     ("max_jerk_mps3: 0.98", "max_jerk_mps3: yes", "max_jerk_mps3"),
     ("mass_kg: 160800.0", "mass_kg: -160800", "mass_kg"),
     ("davis_b_n_per_mps: 633.6", "davis_b_n_per_mps: .nan", "davis_b_n_per_mps"),
+    # a power in kW (1,200 for 1.2 MW): 0.0075 W/kg; the train crawled at 0.13 m/s and the run failed 1.4 h later
+    ("max_power_w: 1200000.0", "max_power_w: 1200", "max_power_w"),
 ])
 def test_a_bad_rolling_stock_file_is_one_error_line_and_nothing_written(in_tmp, capsys, old, new, field):
     assert old in STOCK

@@ -31,6 +31,9 @@ from vcsumo.units import kmh_to_ms
 
 MAX_ACCEL_MPS2 = 3.0
 """Largest starting acceleration F_max/M accepted, m/s² (metros reach 1.3; adhesion caps it near 3)."""
+MIN_POWER_W_PER_KG = 0.2
+"""Smallest traction power per mass accepted, W/kg (= kW/t): heavy-haul ore trains run at ≈ 0.4 kW/t;
+below 0.2 a train crawls (a power given in kW instead of W is 1,000 times too small)."""
 
 
 class Interval(StrictModel):
@@ -99,6 +102,9 @@ class RollingStock(StrictModel):
     def _consistent(self) -> "RollingStock":
         if self.max_traction_n / self.mass_kg > MAX_ACCEL_MPS2:
             raise FieldProblem("max_traction_n", f"max_traction_n / mass_kg = {self.max_traction_n / self.mass_kg:.3g} m/s² exceeds {MAX_ACCEL_MPS2:g} m/s² (no train accelerates faster)")
+        if self.max_power_w / self.mass_kg < MIN_POWER_W_PER_KG:
+            raise FieldProblem("max_power_w", f"max_power_w / mass_kg = {self.max_power_w / self.mass_kg:.3g} W/kg is below {MIN_POWER_W_PER_KG:g} W/kg "
+                                              f"(the heaviest heavy-haul trains have about 0.4): the power is in W, not kW")
         if self.emergency_brake_decel_mps2 < self.service_brake_decel_mps2:
             raise FieldProblem("emergency_brake_decel_mps2", f"{self.emergency_brake_decel_mps2} m/s² must not be below service_brake_decel_mps2 ({self.service_brake_decel_mps2} m/s²)")
         box = self.uncertainty
