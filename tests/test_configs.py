@@ -245,10 +245,29 @@ def test_an_empty_headway_table_exits_1(in_tmp, capsys):
     assert (in_tmp / "h" / "headway.csv").is_file()
 
 
-def test_a_train_that_cannot_start_makes_the_run_exit_1(in_tmp, capsys):
-    stock = write(in_tmp / "weak.yaml", FELEZ_TRAIN.replace("max_power_w: 1200000.0", "max_power_w: 1000").replace("name: felez2019", "name: weak"))
-    tt = write(in_tmp / "tt.yaml", f"name: weak\nline: felez_test\nservices:\n  - {{id: W, train: {stock}, origin: ORIG, destination: STOP, departure: 0}}\n")
-    msg = _one_error(capsys, main(["run", "--line", "felez_test", "--timetable", str(tt), "--regime", "fbs", "--out", "r"]), [], expected=1)
+CLIMB = """name: climb
+title: A 29 km climb at 10 permille (test line of our own) [A]
+km_start: 0.0
+km_end: 31.0
+line_speed_kmh: 100
+default_train: felez2019
+stations:
+  - {id: FOOT, name: Foot, km: 0.5, platform_length_m: 200, dwell_s: 30}
+  - {id: TOP, name: Top, km: 30.5, platform_length_m: 200, dwell_s: 30}
+gradients:
+  - {from_km: 1.0, to_km: 30.0, permille: 10.0}
+signalling: {block_length_m: 2000}
+"""
+
+
+def test_a_train_that_never_arrives_makes_the_run_exit_1(in_tmp, capsys):
+    """A weak train (40 kW for 161 t, 0.25 W/kg: accepted) crawls up the climb at ≈ 1.6 m/s and is
+    still on it when the run ends (last departure + 4 × route / 10 m/s + 1 h).  (A power given in kW
+    — this test's old 1 kW train — is now refused on loading: test_unseen7_bad_values.)"""
+    stock = write(in_tmp / "weak.yaml", FELEZ_TRAIN.replace("max_power_w: 1200000.0", "max_power_w: 40000.0").replace("name: felez2019", "name: weak"))
+    line = write(in_tmp / "climb.yaml", CLIMB)
+    tt = write(in_tmp / "tt.yaml", f"name: weak\nline: climb\nservices:\n  - {{id: W, train: {stock}, origin: FOOT, destination: TOP, departure: 0}}\n")
+    msg = _one_error(capsys, main(["run", "--line", str(line), "--timetable", str(tt), "--regime", "fbs", "--out", "r"]), [], expected=1)
     assert msg.startswith("error: the run is not healthy: 0 of 1 trains arrived (1 stops not reached)"), msg  # never got there: not skipped
     summary = json.loads((in_tmp / "r" / "summary.json").read_text())  # kept, and valid JSON
     assert summary["healthy"] is False and summary["trains_arrived"] == 0
