@@ -15,6 +15,7 @@ from __future__ import annotations
 import pytest
 
 from tests.conftest import write
+from tests.test_unseen7_capacity_health_columns import FREIGHT  # the 600 m, 1,200 t freight of the unseen7 tests
 from vcsumo.line import load_line
 from vcsumo.rolling_stock import load_rolling_stock
 from vcsumo.route_profile import RouteProfile
@@ -36,21 +37,6 @@ gradients:
 signalling: {block_length_m: 600}
 """
 
-FREIGHT = """name: freight_u7
-length_m: 600.0
-mass_kg: 1200000.0
-rotating_mass_factor: 1.08
-max_speed_kmh: 100.0
-max_traction_n: 420000.0
-max_power_w: 4000000.0
-davis_a_n: 12000.0
-davis_b_n_per_mps: 150.0
-davis_c_n_per_mps2: 8.0
-service_brake_decel_mps2: 0.40
-emergency_brake_decel_mps2: 0.55
-max_jerk_mps3: 0.5
-traction_lag_s: 1.0
-"""
 
 
 def _braking(tmp_path, block_m: float, **kw) -> tuple[RouteBraking, RouteProfile]:
