@@ -100,12 +100,9 @@ def build_network_topology(net: Network, block_length_m: float | None = None) ->
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             part = _prefixed(build_topology(view, None, frozenset(inner[n])), n)
-        explicit = block_length_m is None and bool(net.full_lines[n].data.signalling.signals_km)
-        for w in caught:  # the view gives every line's block markers explicitly: only a line file's own are said
-            if "signalling.signals_km" not in str(w.message):
-                warnings.warn(w.message, w.category, stacklevel=2)
-            elif explicit:
-                warnings.warn(f"{n}: {w.message}", w.category, stacklevel=2)
+        for w in caught:  # the view keeps regular markers regular (line_part): a signals_km warning is the line file's own, said with its line
+            named = "signalling.signals_km" in str(w.message)
+            warnings.warn(f"{n}: {w.message}" if named else w.message, w.category, stacklevel=2)
         part.km_origin = {k: net.full_lines[n].data.km_start if k == f"{n}.main" else v for k, v in part.km_origin.items()}
         parts[n] = part
 

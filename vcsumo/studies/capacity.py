@@ -208,7 +208,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
             if sv is not None:
                 traces[t.id] = ([x + off for x in sv[0]], sv[1])
         pr.compute_speed_deficits({"end": s_check}, traces, order, start_delays, rel_tol=SPEED_TOL_REL, abs_tol_mps=SPEED_TOL_ABS_MPS, pairs=pairs,
-                                   min_speed_mps=SPEED_TOL_MIN_MPS, start_tolerance_s=max(0.5, dt + 1e-6))
+                                   min_speed_mps=SPEED_TOL_MIN_MPS, step_s=dt)
         if driver is not None:
             pr.vc = driver.summary()  # type: ignore[attr-defined]
             pr.vc_records = cruise_records(pd.DataFrame(driver.records), setup, {t.id: t for u in units for t in u[1:]}, driver.coupled_spacing_m)  # type: ignore[attr-defined]

@@ -184,7 +184,7 @@ def run_headway_case(
         pr.compute_delays([m.label for m in mps], order)
         start_delays = dict(zip(sim.trains.train, sim.trains.departure_delay_s.fillna(0.0)))
         pr.compute_speed_deficits({lab: x + DEFICIT_WINDOW_S * speed_at(run, x) for lab, _, x in pts}, sim.speed_traces, order, start_delays,
-                                  rel_tol=SPEED_TOL_REL, abs_tol_mps=SPEED_TOL_ABS_MPS, start_tolerance_s=max(0.5, step_s + 1e-6))
+                                  rel_tol=SPEED_TOL_REL, abs_tol_mps=SPEED_TOL_ABS_MPS, step_s=step_s)
         return pr
 
     found = search_min_headway(run_at, [lab for lab, _, _ in pts], guesses, tolerance_s=tolerance_s, resolution_s=resolution_s)

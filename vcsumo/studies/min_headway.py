@@ -36,7 +36,7 @@ class Probe:
     """Largest speed deficit (unhindered − actual) before each measuring point, m/s."""
 
     def compute_speed_deficits(self, points_m: dict[str, float], traces: dict[str, tuple[list[float], list[float]]], order: list[str], start_delays: dict[str, float], rel_tol: float = 0.005, abs_tol_mps: float = 0.3, pairs: list[tuple[str, str]] | None = None, min_speed_mps: float = 0.0,
-                               start_tolerance_s: float = 0.5) -> None:
+                               step_s: float = 0.0) -> None:
         """Speed deficit before each point, normalised so that a value above 0 means hindered.
 
         Positions where the reference runs slower than ``min_speed_mps`` (the last metres of a
@@ -45,10 +45,12 @@ class Probe:
 
         Each train is compared with its reference (by default the first train of ``order``; for
         convoys ``pairs`` gives (train, same member of the first convoy)).  A train whose start was
-        delayed by more than ``start_tolerance_s`` is hindered (SUMO inserts a train at the first step
+        delayed by more than max(0.5 s, ``step_s``) is hindered (SUMO inserts a train at the first step
         at or after its departure: at least one step length, or a coarse step is hindrance itself).
         """
         import numpy as np
+
+        start_tolerance_s = max(0.5, step_s + 1e-6)
 
         pairs = pairs if pairs is not None else [(tid, order[0]) for tid in order[1:]]
         for lab, x in points_m.items():
