@@ -71,3 +71,16 @@ def test_headway_at_point_takes_the_largest_block_approached_before_it():
     h_late, _ = fbs_headway_at(blocks, 50000)
     assert h_early == pytest.approx(uniform_fbs_headway(v1, 1000, L, rule), rel=0.02)
     assert h_late == pytest.approx(uniform_fbs_headway(v2, 1000, L, rule), rel=0.02)
+
+
+def test_mb_headway_is_continuous_in_the_margin_a_50_m_margin_is_not_sumos():
+    # a set with a 30 m margin and 10 m position errors has a 50 m margin at every speed: before, exactly 50 m
+    # was taken for SUMO's own margin and dropped to 5 m below 30 km/h (3.4 s off at a departure)
+    t = np.arange(0.0, 200.0, 0.5)
+    v = np.minimum(0.5 * t, 40.0)
+    run = pd.DataFrame({"time_s": t, "s_m": np.cumsum(v) * 0.5, "speed_mps": v})
+    rule = BrakingRule(0.6, 2.0)
+    h = [mb_headway_profile(run, 150.0, rule, m).headway_s.iloc[0] for m in (49.999, 50.0, 50.001)]
+    assert h[1] == pytest.approx(h[0], abs=0.01) and h[1] == pytest.approx(h[2], abs=0.01)
+    # SUMO's own margin (None): 5 m below 30 km/h
+    assert mb_headway_profile(run, 150.0, rule).headway_s.iloc[0] < h[1] - 1.0

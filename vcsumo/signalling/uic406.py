@@ -24,33 +24,47 @@ Branches are not evaluated.  Sections without trains are not reported.
 Running profiles
 ----------------
 Each train runs its scheduled running profile (:func:`vcsumo.signalling.scheduled_run.timetable_run`):
-its unhindered run from its scheduled departure, each stretch between timing points slowed
-uniformly to arrive at the scheduled time, dwells extended to the scheduled departures.
+its unhindered run from its scheduled departure braking on its guaranteed, gradient-compensated
+curve under the assumption set (as the supervision brakes every train SUMO drives), each stretch
+between timing points slowed uniformly to arrive at the scheduled time, dwells extended to the
+scheduled departures.
 
 Blocking-time stairs
 --------------------
-The blocks of a section are the stretches between consecutive signals in it (the section's end
-boundary closes the last block).  A train's blocking time of block k [S_k, S_k+1] runs
+The blocks and the rules are the regimes' own (:mod:`vcsumo.signalling.regimes`, the separation
+model of the capacity study and of the runs' supervision and health).  The blocks of a section are
+the stretches between consecutive signals in it (the section's end boundary closes the last
+block).  A train's blocking time of block k [S_k, S_k+1] runs
 
-* from the moment it passes the *approach point* a_k, where a_k + D(v(a_k)) = S_k — computed by
-  :func:`vcsumo.signalling.blocking_time.fbs_blocking_times` with SUMO's braking rule (D = v²/(2b) + ½·Δt·v,
-  :func:`vcsumo.signalling.blocking_time.sumo_reaction_time`); a train standing at a stop approaches the
-  blocks ahead of it only once it departs (a block starting at its stop is blocked from the
-  departure);
-* to the moment its tail clears S_k+1 (front at S_k+1 + L); a train ending its run inside the
-  block (terminating at a platform, leaving the network) releases it when it arrives.
+* from the moment it passes the *approach point* a_k, where it must be able to stop short of S_k:
+  a_k + D(v(a_k), a_k) + e = S_k, with D the supervised braking distance (the set's dead time +
+  1.5 steps, then its guaranteed brake over the route's gradients,
+  :class:`vcsumo.signalling.regimes.base.SupervisedBraking`) and e the position error —
+  :func:`vcsumo.signalling.blocking_time.fbs_blocking_times`; a train standing at a stop approaches
+  the blocks ahead of it only once it departs (a block starting at its stop is blocked from the
+  departure); the set's fixed times are added before it;
+* to the moment its tail clears S_k+1 by the overlap and the position error (front at S_k+1 +
+  overlap + e + L); a train ending its run inside the block (terminating at a platform, leaving
+  the network) releases it when it arrives.
 
-``regime`` chooses the blocks and the braking rule:
+``regime`` chooses the blocks and the rule:
 
-* ``fbs`` — the line's signals (:meth:`vcsumo.route_profile.RouteProfile.signal_positions`);
-* ``mb`` — moving block as *virtual blocks* of ``virtual_block_m`` (default 25 m) with SUMO's
-  moving-block braking distance D(v) + 50 m (:data:`vcsumo.signalling.blocking_time.SUMO_MB_MARGIN_M`): the
-  stairs become the moving-block headway band (within ``virtual_block_m``/v);
+* ``fbs`` — the line's signals (:meth:`vcsumo.route_profile.RouteProfile.signal_positions`), as above;
+* ``mb`` — moving block as *virtual blocks* of ``virtual_block_m`` (default 25 m): approached at
+  D(v, s) + the set's margin and both position errors, released one position-report period after the
+  tail clears (the authority is built from a report up to that old), fixed times added: the stairs
+  become the moving-block headway band of :class:`vcsumo.signalling.regimes.mb.MovingBlock`
+  (within ``virtual_block_m``/v);
 * ``vc`` — as ``mb``, except that a declared convoy follower approaches its own convoy leader at
-  the relative-braking-distance gap ``vc_gap_m`` instead of D(v) + 50 m.
+  the coupled gap of the separation model (:class:`CoupledGapRule`: relative braking with the set's
+  message-age bound, no report period, no fixed times).
 
-No setup, sighting or release times are added (SUMO's signalling has none, as in
-:mod:`vcsumo.signalling.blocking_time`); ``setup_s`` and ``release_s`` add them to every block.
+Before (up to this version) the stairs took SUMO's nominal service brake and a fixed 50 m margin,
+the running profiles SUMO's unsupervised driving, and a follower's coupled gap a fixed 50 m: the
+consumption then measured a separation the runs' trains were never allowed to keep.
+
+Beyond the set's fixed times no setup, sighting or release times are added (SUMO's signalling
+has none); ``setup_s`` and ``release_s`` add them to every block.
 
 Compression and consumption
 ---------------------------
@@ -88,8 +102,12 @@ from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
 from vcsumo.network_file import Network
 from vcsumo.running_time import time_at
-from vcsumo.signalling.blocking_time import SUMO_MB_MARGIN_M, BrakingRule, fbs_blocking_times, sumo_reaction_time
+from vcsumo.rolling_stock import RollingStock
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.blocking_time import BrakingRule, fbs_blocking_times
+from vcsumo.signalling.regimes.base import SupervisedBraking
 from vcsumo.signalling.scheduled_run import at_time_zero, departure_index, pattern_key, route_end_s, timetable_run
+from vcsumo.signalling.separation import SeparationModel
 from vcsumo.timetable import PlannedTrain, TimetableFile
 from vcsumo.topology import Topology
 
@@ -107,13 +125,30 @@ class _Rule(Protocol):
 
 @dataclass(frozen=True)
 class MarginRule:
-    """A braking rule plus a fixed margin: D(v) + margin (SUMO's moving block)."""
+    """A braking rule plus a fixed margin: D(v, s) + margin (moving block: the set's margin and both
+    position errors)."""
 
-    base: BrakingRule
+    base: _Rule
     margin_m: float
 
     def distance(self, v, s=None):
         return self.base.distance(v, s) + self.margin_m
+
+
+@dataclass(frozen=True)
+class CoupledGapRule:
+    """The coupled gap of a VC follower behind its own leader at the follower's speed:
+    :meth:`vcsumo.signalling.separation.SeparationModel.vc_gap` (relative braking with the set's
+    message-age bound, margin and position errors; level track, both trains at that speed), m."""
+
+    model: SeparationModel
+    follower: RollingStock
+    leader: RollingStock
+
+    def distance(self, v, s=None):
+        v_arr = np.atleast_1d(np.asarray(v, dtype=float))
+        out = np.array([self.model.vc_gap(self.follower, self.leader, float(x)) for x in v_arr])
+        return float(out[0]) if np.ndim(v) == 0 else out
 
 
 @dataclass(frozen=True)
@@ -189,13 +224,17 @@ def line_sections(line: Line, topo: Topology) -> list[Section]:
 def stairs(
     run: pd.DataFrame, markers_s: list[float], section_end_s: float, length_m: float, rule: _Rule,
     full_run: pd.DataFrame | None = None, setup_s: float = 0.0, release_s: float = 0.0,
+    approach_offset_m: float = 0.0, clear_offset_m: float = 0.0,
 ) -> pd.DataFrame:
     """Blocking-time stairs of one train over consecutive blocks.
 
     ``markers_s`` are the block starts (route positions, m; sorted), the last block ends at
     ``section_end_s``.  ``run`` is the part of the train's profile from which it approaches these
     blocks (it starts at the train's departure from its last stop before them, or its origin);
-    ``full_run`` (default ``run``) gives the times its tail clears each block.  Returns
+    ``full_run`` (default ``run``) gives the times its tail clears each block.  A block is
+    approached where the train must be able to stop ``approach_offset_m`` short of its start (the
+    position error) and released when the tail is ``clear_offset_m`` beyond its end (overlap and
+    position error), as :func:`vcsumo.signalling.blocking_time.fbs_blocking_times`.  Returns
     ``block_start_m, block_end_m, approach_m, t_start_s, t_end_s, blocking_time_s``.
     """
     full = run if full_run is None else full_run
@@ -203,12 +242,12 @@ def stairs(
     # a block starting where the train stands (origin, stop) is approached at departure:
     # fbs_blocking_times only takes signals beyond the run's start, so move it 2 mm ahead
     sig = [x + 0.002 if abs(x - s0) < 1e-3 else x for x in markers_s]
-    blocks = fbs_blocking_times(run, sig, section_end_s, length_m, rule)  # type: ignore[arg-type]
+    blocks = fbs_blocking_times(run, sig, section_end_s, length_m, rule, approach_offset_m)  # type: ignore[arg-type]
     if len(blocks) != len(markers_s):
         raise VcsumoError(f"blocking-time stairs: {len(markers_s) - len(blocks)} block(s) start before the train's run")
     fs = full["s_m"].to_numpy()
     t_last = float(full["time_s"].iloc[-1])
-    ends = np.array(list(markers_s[1:]) + [section_end_s]) + length_m
+    ends = np.array(list(markers_s[1:]) + [section_end_s]) + length_m + clear_offset_m
     t_end = time_at(full, np.minimum(ends, fs[-1]))
     t_end = np.where(ends > fs[-1] + 1e-6, t_last, t_end)  # released when the train arrives (leaves the line)
     out = pd.DataFrame({
@@ -284,14 +323,15 @@ def convoy_pairs(tt: TimetableFile, trains: list[PlannedTrain]) -> list[tuple[st
 
 def capacity_consumption(
     line: Line, topo: Topology, trains: list[PlannedTrain], regime: str = "fbs", convoys: list[tuple[str, str]] | None = None,
-    window_s: float = DEFAULT_WINDOW_S, step_s: float = 0.5, virtual_block_m: float = 25.0, vc_gap_m: float = 50.0,
-    setup_s: float = 0.0, release_s: float = 0.0, cache: dict | None = None,
+    window_s: float = DEFAULT_WINDOW_S, step_s: float = 0.5, virtual_block_m: float = 25.0,
+    setup_s: float = 0.0, release_s: float = 0.0, cache: dict | None = None, model: SeparationModel | None = None,
 ) -> pd.DataFrame:
     """UIC 406 capacity consumption of a timetable on every line section (one row per section).
 
-    ``topo`` is the built network's topology (its signals give the fixed blocks).
-    ``cache`` (a dict, optional) keeps running profiles and stairs between calls on the same
-    trains (e.g. one call per regime).
+    ``topo`` is the built network's topology (its signals give the fixed blocks).  ``model``: the
+    separation model whose rules the blocking times follow (None: the shipped default assumption
+    set, as the batch's runs).  ``cache`` (a dict, optional) keeps running profiles and stairs
+    between calls on the same trains (e.g. one call per regime).
 
     Columns: ``regime, direction, section, from_km, to_km, length_m, blocks, trains,
     scheduled_span_s`` (first blocking start to last blocking end as scheduled),
@@ -303,14 +343,25 @@ def capacity_consumption(
         raise VcsumoError(f"UIC 406: window {window_s} s must be positive")
 
     followers = {f: l for l, f in (convoys or [])} if regime == "vc" else {}
+    model = SeparationModel(load_assumptions()) if model is None else model
+    a = model.assumptions
+    by_id = {t.id: t for t in trains}
     cache = {} if cache is None else cache
-    patterns: dict[tuple, pd.DataFrame] = cache.setdefault(("patterns", step_s), {})
-    stair_cache: dict[tuple, pd.DataFrame] = cache.setdefault(("stairs", step_s, virtual_block_m, setup_s, release_s), {})
+    set_key = a.model_dump_json()
+    patterns: dict[tuple, pd.DataFrame] = cache.setdefault(("patterns", step_s, set_key), {})
+    stair_cache: dict[tuple, pd.DataFrame] = cache.setdefault(("stairs", step_s, virtual_block_m, setup_s, release_s, set_key), {})
+    # the regime's rule (vcsumo.signalling.regimes): where a block is approached and when it is released
+    if regime == "fbs":
+        offsets = {"approach_offset_m": a.position_error_m, "clear_offset_m": a.overlap_m + a.position_error_m}
+        setup, release = setup_s + a.fixed_time_s, release_s
+    else:  # the confirmed rear of the train ahead is up to one report period old
+        offsets = {}
+        setup, release = setup_s + a.fixed_time_s, release_s + a.position_report_period_s
     runs: dict[str, pd.DataFrame] = {}
     for t in trains:
         key = pattern_key(t)
         if key not in patterns:
-            patterns[key] = timetable_run(at_time_zero(t), step_s)
+            patterns[key] = timetable_run(at_time_zero(t), step_s, model)
         r = patterns[key].copy()
         r["time_s"] += t.depart_s
         runs[t.id] = r
@@ -338,14 +389,14 @@ def capacity_consumption(
         vc_starts: dict[str, np.ndarray] = {}
         for _, tid, t, s_a, s_b in members:
             prof = t.profile
-            rule_base = BrakingRule(t.stock.service_brake_decel_mps2, sumo_reaction_time(step_s))
+            braking = SupervisedBraking(model, t.stock, prof, step_s)
             if regime == "fbs":
                 markers = [x for x in prof.signal_positions(topo) if s_a - 1e-3 <= x < s_b - 1e-3]
-                rule: _Rule = rule_base
+                rule: _Rule = braking
             else:
                 n = max(1, int(math.ceil((s_b - s_a) / virtual_block_m - 1e-9)))
                 markers = [s_a + k * (s_b - s_a) / n for k in range(n)]
-                rule = MarginRule(rule_base, SUMO_MB_MARGIN_M)
+                rule = MarginRule(braking, model.margin_m)
             if regime == "fbs":
                 keys: list = [round(prof.km_at(x)[1], 3) for x in markers]
             else:
@@ -357,13 +408,17 @@ def capacity_consumption(
                 continue
             pkey = (pattern_key(t), sec, "fbs" if regime == "fbs" else "mb")
             if pkey not in stair_cache:
-                stair_cache[pkey] = _train_stairs(patterns[pattern_key(t)], t, markers, s_b, rule, setup_s, release_s)
+                stair_cache[pkey] = _train_stairs(patterns[pattern_key(t)], t, markers, s_b, rule, setup, release, offsets)
             st = stair_cache[pkey]
             per_train.append((tid, keys, st["t_start_s"].to_numpy() + t.depart_s, st["t_end_s"].to_numpy() + t.depart_s))
-            if tid in followers:
-                vkey = pkey + ("vc", vc_gap_m)
+            if tid in followers and followers[tid] in by_id:
+                # a convoy follower approaches its own leader at the coupled gap (relative braking, no report
+                # period, no fixed times: its starts are moved by the report period the leader's releases carry)
+                lead_stock = by_id[followers[tid]].stock
+                vkey = pkey + ("vc", lead_stock.name)
                 if vkey not in stair_cache:
-                    stair_cache[vkey] = _train_stairs(patterns[pattern_key(t)], t, markers, s_b, GapRule(vc_gap_m), setup_s, release_s)
+                    stair_cache[vkey] = _train_stairs(patterns[pattern_key(t)], t, markers, s_b, CoupledGapRule(model, t.stock, lead_stock),
+                                                      setup_s - a.position_report_period_s, release)
                 vc_starts[tid] = stair_cache[vkey]["t_start_s"].to_numpy() + t.depart_s
         if not per_train:
             continue
@@ -400,7 +455,8 @@ def capacity_consumption(
     return pd.DataFrame(rows, columns=SECTION_COLUMNS)
 
 
-def _train_stairs(pattern_run: pd.DataFrame, t: PlannedTrain, markers: list[float], s_b: float, rule: _Rule, setup_s: float, release_s: float) -> pd.DataFrame:
+def _train_stairs(pattern_run: pd.DataFrame, t: PlannedTrain, markers: list[float], s_b: float, rule: _Rule, setup_s: float, release_s: float,
+                  offsets: dict | None = None) -> pd.DataFrame:
     """Stairs of one train (relative to its departure) over a section's blocks."""
     # the leg from which the blocks are approached: from the departure of the last stop at or
     # before the first block (or the origin)
@@ -410,7 +466,7 @@ def _train_stairs(pattern_run: pd.DataFrame, t: PlannedTrain, markers: list[floa
         if st.s_m <= first + 1e-3:
             i0 = departure_index(pattern_run, st.s_m, i0)
     leg = pattern_run.iloc[i0:].reset_index(drop=True)
-    return stairs(leg, markers, s_b, t.stock.length_m, rule, full_run=pattern_run, setup_s=setup_s, release_s=release_s)
+    return stairs(leg, markers, s_b, t.stock.length_m, rule, full_run=pattern_run, setup_s=setup_s, release_s=release_s, **(offsets or {}))
 
 
 def max_consumption(sections: pd.DataFrame) -> float:

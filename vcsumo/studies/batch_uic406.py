@@ -1,5 +1,6 @@
 """UIC 406 capacity consumption of a batch's timetables (no delays), cached in the batch folder's
-``uic406.csv`` per timetable, regime, step length and window (:mod:`vcsumo.signalling.uic406`).
+``uic406.csv`` per timetable, regime, step length, window and assumption set (:mod:`vcsumo.signalling.uic406`:
+the blocking times of the separation model under the set the batch's runs are supervised and judged with).
 """
 
 from __future__ import annotations
@@ -12,9 +13,11 @@ import pandas as pd
 from vcsumo.engine.store import atomic_csv
 from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import SeparationModel
 from vcsumo.studies.batch_run import RunSpec
 
-UIC_COLUMNS = ["timetable", "timetable_sha256", "regime", "step_length_s", "window_s", "direction", "section", "from_km", "to_km",
+UIC_COLUMNS = ["timetable", "timetable_sha256", "regime", "assumptions", "step_length_s", "window_s", "direction", "section", "from_km", "to_km",
                "length_m", "blocks", "trains", "scheduled_span_s", "occupation_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct"]
 
 
@@ -22,12 +25,15 @@ def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step
     """The folder's ``uic406.csv`` (``UIC_COLUMNS``), completed with every timetable and regime of
     ``specs`` not yet in it (a timetable that fails to plan is skipped: its runs fail with the error)."""
     path = out / "uic406.csv"
-    have = pd.read_csv(path, dtype={"timetable_sha256": str, "timetable": str}) if path.is_file() else pd.DataFrame(columns=UIC_COLUMNS)
-    if list(have.columns) != UIC_COLUMNS:
+    have = pd.read_csv(path, dtype={"timetable_sha256": str, "timetable": str, "assumptions": str}) if path.is_file() else pd.DataFrame(columns=UIC_COLUMNS)
+    if list(have.columns) != UIC_COLUMNS:  # (a folder of an older vcsumo: its figures were on SUMO's nominal braking, computed again)
         have = pd.DataFrame(columns=UIC_COLUMNS)
+    model = SeparationModel(load_assumptions())  # the set every run of the batch is supervised with (vcsumo.studies.batch_run)
+    set_name = model.assumptions.name
 
     def cached(sha: str, regime: str) -> bool:
-        m = (have["timetable_sha256"] == sha) & (have["regime"] == regime) & (have["window_s"] == window_s) & (have["step_length_s"] == step_length_s)
+        m = (have["timetable_sha256"] == sha) & (have["regime"] == regime) & (have["window_s"] == window_s) & (have["step_length_s"] == step_length_s) \
+            & (have["assumptions"] == set_name)
         return bool(m.any())
 
     need: dict[str, tuple[RunSpec, set[str]]] = {}
@@ -51,10 +57,11 @@ def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step
             continue  # the runs fail with the same error
         cache: dict = {}
         for regime in sorted(regimes):
-            df = capacity_consumption(line, net.topology, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache)
+            df = capacity_consumption(line, net.topology, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache, model=model)
             df.insert(0, "timetable", spec.timetable)
             df.insert(1, "timetable_sha256", sha)
-            df.insert(3, "step_length_s", step_length_s)
+            df.insert(3, "assumptions", set_name)
+            df.insert(4, "step_length_s", step_length_s)
             new.append(df[UIC_COLUMNS])
     if new:
         have = pd.concat([have] + new, ignore_index=True) if len(have) else pd.concat(new, ignore_index=True)

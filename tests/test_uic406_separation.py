@@ -1,0 +1,72 @@
+"""UIC 406 on the one separation model: the blocking times of the batch's capacity consumption are
+the regimes' analytic headways (the capacity study's rules), under the run's assumption set —
+not SUMO's nominal braking with a fixed 50 m margin and a 50 m coupled gap (before)."""
+
+import pytest
+
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.regimes.base import HeadwayInputs
+from vcsumo.signalling.regimes.fbs import FixedBlock
+from vcsumo.signalling.regimes.mb import MovingBlock
+from vcsumo.signalling.scheduled_run import at_time_zero, timetable_run
+from vcsumo.signalling.separation import SeparationModel
+from vcsumo.signalling.uic406 import capacity_consumption, convoy_pairs
+from vcsumo.timetable import load_timetable, plan_trains
+
+from .conftest import write
+
+STEP_S = 0.5
+
+
+def _trains(tmp_path, line, net, n=2, destination="STOP"):
+    path = write(tmp_path / "t.yaml", f"name: t\nline: felez_test\nservices:\n  - {{id: T, train: felez2019, origin: ORIG, destination: {destination}, "
+                 f"departure: 0, repeat: {{count: {n}, every_s: 600}}}}\n")
+    tt, p = load_timetable(path, line)
+    return plan_trains(tt, p, line, net.topology, dt=STEP_S)
+
+
+def _inputs(model, t, net, s_a, s_b):
+    run = timetable_run(at_time_zero(t), STEP_S, model)
+    run = run[run.s_m >= s_a].reset_index(drop=True)  # from the departure at ORIG (the section's start)
+    signals = [x for x in t.profile.signal_positions(net.topology) if s_a + 1e-3 < x < s_b - 1e-3]
+    return HeadwayInputs(model, t.stock, t.profile, run, signals, STEP_S, s_check_m=s_b, route_end_m=s_b)
+
+
+@pytest.mark.parametrize("changes", [{}, {"fixed_time_s": 6.0, "position_error_m": 30.0, "overlap_m": 120.0}])
+def test_fbs_consumption_cycle_is_the_fixed_block_regimes_headway_per_train(tmp_path, line_factory, network_factory, changes):
+    line, net = line_factory("felez_test"), network_factory("felez_test")
+    model = SeparationModel(load_assumptions().model_copy(update=changes))
+    trains = _trains(tmp_path, line, net)
+    df = capacity_consumption(line, net.topology, trains, "fbs", model=model, step_s=STEP_S)
+    row = df[(df.direction == "up") & (df.section == "ORIG-STOP")].iloc[0]
+    t = trains[0]
+    s_a, s_b = t.profile.s_of("main", row.from_km), t.profile.s_of("main", row.to_km)
+    h = FixedBlock().analytic_headway(_inputs(model, t, net, s_a, s_b)).headway_s
+    # two identical trains: the cycle is two minimum headways (reported to 0.01 s)
+    assert row.trains == 2 and row.cycle_s == pytest.approx(2 * h, abs=0.02), (row.cycle_s, h)
+
+
+def test_mb_consumption_cycle_is_the_moving_block_regimes_headway_within_a_virtual_block(tmp_path, line_factory, network_factory):
+    line, net = line_factory("felez_test"), network_factory("felez_test")
+    model = SeparationModel(load_assumptions().model_copy(update={"position_report_period_s": 5.0}))
+    trains = _trains(tmp_path, line, net, destination="end")  # through STOP: the run goes on beyond the section
+    df = capacity_consumption(line, net.topology, trains, "mb", model=model, step_s=STEP_S, virtual_block_m=5.0)
+    row = df[(df.direction == "up") & (df.section == "ORIG-STOP")].iloc[0]
+    t = trains[0]
+    s_a, s_b = t.profile.s_of("main", row.from_km), t.profile.s_of("main", row.to_km)
+    h = MovingBlock().analytic_headway(_inputs(model, t, net, s_a, s_b)).headway_s
+    # the stairs' virtual blocks (5 m here) and the analytic profile's 50 m grid sample H(y) differently: within 1 %
+    assert row.cycle_s / 2 == pytest.approx(h, rel=0.01), (row.cycle_s, h)
+
+
+def test_a_set_with_stronger_assumptions_consumes_more_and_vc_keeps_the_coupled_gap(line_factory, network_factory):
+    line, net = line_factory("felez_test"), network_factory("felez_test")
+    tt, p = load_timetable("convoy", line)
+    trains = plan_trains(tt, p, line, net.topology, dt=STEP_S)
+    pairs = convoy_pairs(tt, trains)
+    base = SeparationModel(load_assumptions())
+    worse = SeparationModel(load_assumptions().model_copy(update={"braking_uncertainty": 0.2, "t2t_delay_bound_s": 2.0}))
+    for regime in ("fbs", "mb", "vc"):
+        a = capacity_consumption(line, net.topology, trains, regime, pairs, model=base, step_s=STEP_S).cycle_s.sum()
+        b = capacity_consumption(line, net.topology, trains, regime, pairs, model=worse, step_s=STEP_S).cycle_s.sum()
+        assert b > a, (regime, a, b)
