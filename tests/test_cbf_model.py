@@ -189,7 +189,7 @@ def test_registry_builds_the_model_barrier_under_the_context_assumptions():
     a = load_assumptions().model_copy(update={"safety_margin_m": 80.0, "position_error_m": 5.0})
     stack = build_follower_stack("cbf-cbc", StackContext(ego=st, predecessor=st, step_s=0.2, assumptions=a))
     sup = stack.supervisor
-    assert sup.cfg.distance == "model" and sup.cfg.leader_braking == "emergency"
+    assert sup.cfg.distance == "model" and sup.cfg.leader_braking is None  # the set's relative braking (emergency)
     assert sup.safety_distance_m == 90.0 and stack.d_min_m == 90.0
     paper = build_follower_stack("cbf-cbc", StackContext(ego=st, predecessor=st, step_s=0.2, supervisor_params="cbf_terlizzi2024"))
     assert paper.supervisor.cfg.distance == "fixed" and paper.d_min_m == 1000.0

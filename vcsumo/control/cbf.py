@@ -51,7 +51,7 @@ from pathlib import Path
 
 from vcsumo.control.base import Command, Message, Observation
 from vcsumo.control.cbf_barrier import (  # noqa: F401 - the barrier's names are part of this module's interface
-    BarrierModel, CBFConfig, SeparationBarrier, barrier, barrier_from_stops, level_route, load_cbf_config, model_safety_distance_m,
+    BarrierModel, CBFConfig, SeparationBarrier, barrier, barrier_from_stops, level_route, load_cbf_config, model_leader_braking, model_safety_distance_m,
     sampled_stop_margin_m,
 )
 from vcsumo.control.cbf_rlp import DelayEstimator, LeaderRLPPredictor, RLPBranch  # noqa: F401 - re-exported

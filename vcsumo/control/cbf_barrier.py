@@ -37,6 +37,7 @@ import numpy as np
 from pydantic import Field
 
 from vcsumo.config import StrictModel, load_model
+from vcsumo.errors import VcsumoError
 from vcsumo.control.brake_build_up import BrakeBuildUp
 from vcsumo.control.proxies import V_EPS_MPS, BoxBounds, RobustProxies, RouteBounds, StopIntegral
 from vcsumo.rolling_stock import RollingStock
@@ -55,10 +56,13 @@ class CBFConfig(StrictModel):
         description="Safety distance and barrier: 'model' — d = the assumption set's margin + 2 position errors and the separation "
                     "model's relative braking over the whole braking episode (vcsumo.signalling.separation); 'fixed' — the paper's "
                     "eq. 15 with d = safety_distance_m")
-    leader_braking: Literal["emergency", "service"] = Field(
-        default="emergency",
+    leader_braking: Literal["emergency", "service"] | None = Field(
+        default=None,
         description="The leader's strongest braking: 'emergency' — the top of its emergency range under the assumption set (plus its "
-                    "resistance and up-grades); 'service' — the top of its service box (the paper's a_br)")
+                    "resistance and up-grades); 'service' — the top of its service box (the paper's a_br); unset — with distance: model "
+                    "the assumption set's relative_braking (the rule the run-health monitor judges the gap with), with distance: fixed "
+                    "'emergency'. With distance: model a brake weaker than the set's is refused (the CBF would keep less than the run "
+                    "is judged by)")
     safety_distance_m: float = Field(default=1000.0, gt=0, le=50000, description="Safety distance d with distance: fixed, m (Table II: 1,000 m); at most 50 km, the longest block")
     t_max_s: float = Field(default=8.0, gt=0, le=600, description="T^max: longest wait for a leader packet before K_E^F (eq. 18), s (Table II); at most 600 s")
     epsilon: float = Field(default=0.98, gt=0, lt=1, description="ε of §V (slightly below one), - (distance: fixed)")
@@ -148,7 +152,7 @@ class BarrierModel:
     """
 
     def __init__(self, leader: BoxBounds, follower: BoxBounds, config: CBFConfig, profile: RouteProfile | None = None):
-        if config.leader_braking == "emergency":
+        if (config.leader_braking or "emergency") == "emergency":
             leader = leader.with_emergency_leader()
         self.leader = RobustProxies(leader, profile)
         self.follower = RobustProxies(follower, profile)
@@ -332,6 +336,18 @@ def level_route(length_m: float = 1.0e7) -> RouteProfile:
                         km_to=np.array([length_m / 1000.0]), point_limits=[])
 
 
+def model_leader_braking(model: SeparationModel, config: CBFConfig) -> str:
+    """The leader's braking of the barrier on the separation model (``distance: model``): the
+    config's ``leader_braking`` if given, else the assumption set's ``relative_braking`` — the brake
+    the run-health monitor gives the leader.  A brake weaker than the set's (``service`` under an
+    ``emergency`` set) is refused: the CBF would certify a gap the run is judged unsafe at."""
+    kind = config.leader_braking or model.assumptions.relative_braking
+    if kind == "service" and model.assumptions.relative_braking == "emergency":
+        raise VcsumoError(f"CBF parameters '{config.name}': leader_braking 'service' is weaker than the assumption set "
+                          f"'{model.assumptions.name}' relative_braking 'emergency' (leave leader_braking out to follow the set)")
+    return kind
+
+
 def model_safety_distance_m(model: SeparationModel, config: CBFConfig) -> float:
     """d of ``distance: model``: the assumption set's margin behind the leader's rear plus the position
     error of both trains (the larger of the set's and the configuration's bound e_s), m."""
@@ -364,9 +380,10 @@ class SeparationBarrier:
         self.cfg = config
         self.model = model
         self.rule = rule = RelativeBraking(model, follower, leader, prof)
-        if config.leader_braking != a.relative_braking:
-            rule.leader = RouteBraking(model, leader, prof, config.leader_braking, strongest=True)
-            rule.never_outbrakes = rule.follower.brake_part(0.0) <= brake_range(leader, a, config.leader_braking)[1]
+        kind = model_leader_braking(model, config)
+        if kind != a.relative_braking:
+            rule.leader = RouteBraking(model, leader, prof, kind, strongest=True)
+            rule.never_outbrakes = rule.follower.brake_part(0.0) <= brake_range(leader, a, kind)[1]
         self.leader_length_m = leader.length_m
         self.leader_max_speed_ms = leader.max_speed_ms
         self.d_m = model_safety_distance_m(model, config)

@@ -329,13 +329,15 @@ def _build_cbf(ctx: StackContext, params) -> tuple[Any, float]:
     """Terlizzi et al.'s CBF supervisor (Algorithm 1–3, eq. 15, 18) under the context's assumption set
     (``distance: model``: the barrier on the separation model); it allows for the odometry error bound
     of the context.  The minimum safe gap it protects is its d."""
-    from vcsumo.control.cbf import CBFConfig, CBFSupervisor, load_cbf_config
+    from vcsumo.control.cbf import CBFConfig, CBFSupervisor, load_cbf_config, model_leader_braking
 
     cfg = params if isinstance(params, CBFConfig) else load_cbf_config(params)
     if ctx.position_error_m > cfg.position_error_m:  # the supervisor knows the bound of the odometry error (Felez eq. 9)
         cfg = cfg.model_copy(update={"position_error_m": ctx.position_error_m})
-    sup = CBFSupervisor(ctx.predecessor, ctx.ego, cfg, leader_id=ctx.predecessor_id, record=ctx.record,
-                        model=SeparationModel(ctx.assumptions or load_assumptions()))
+    model = SeparationModel(ctx.assumptions or load_assumptions())
+    if cfg.distance == "model":
+        model_leader_braking(model, cfg)  # a leader brake weaker than the set's: refused before the run starts
+    sup = CBFSupervisor(ctx.predecessor, ctx.ego, cfg, leader_id=ctx.predecessor_id, record=ctx.record, model=model)
     return sup, sup.safety_distance_m
 
 

@@ -302,11 +302,20 @@ def check_campaign(cfg: SafetyCampaign, source: Path | None = None) -> None:
             stock(name)
         except InputError as exc:
             raise InputError(source, "--rolling-stock" if source is None else f"rolling_stock[{i}]", exc.message) from None
-    campaign_assumptions(cfg.assumptions)
+    aset = campaign_assumptions(cfg.assumptions)
     for i, c in enumerate(cfg.controllers):
         check_controller(c, "--controllers" if source is None else f"controllers[{i}]", supervisor_params=cfg.cbf_config)
     if cfg.cbf_config:
-        resolve_params(cfg.cbf_config, "cbf", "--cbf" if source is None else "cbf_config")
+        from vcsumo.control.cbf import load_cbf_config, model_leader_braking
+
+        path = resolve_params(cfg.cbf_config, "cbf", "--cbf" if source is None else "cbf_config")
+        cbf = load_cbf_config(path)
+        if cbf.distance == "model":  # a leader brake weaker than the set's: refused before anything runs
+            try:
+                model_leader_braking(SeparationModel(aset), cbf)
+            except VcsumoError:
+                raise InputError(path, "leader_braking", f"'{cbf.leader_braking}' is weaker than the assumption set '{aset.name}' relative_braking "
+                                 f"'{aset.relative_braking}' (leave leader_braking out to follow the set)") from None
     if len(set(cfg.controllers)) != len(cfg.controllers):
         raise InputError(source, "controllers", "a controller is listed twice")
 
