@@ -163,7 +163,7 @@ def test_a_follower_stopped_within_a_step_stays_unhealthy_with_the_event_named(t
     assert len(real) == 1
     ev = real.iloc[0]
     assert ev.train == "F" and ev.time_s == 250.5 and ev.in_sumo_log and not ev.driven_by_sumo
-    assert ev.decel_mps2 > 30.0 and ev.sumo_decel_mps2 == pytest.approx(ev.decel_mps2, abs=0.006) and ev.reason.startswith("beyond the service brake")
+    assert ev.decel_mps2 > 30.0 and ev.sumo_decel_mps2 == pytest.approx(ev.decel_mps2, abs=0.006) and ev.reason.startswith("beyond its emergency brake")
     assert list(rows.time_s) == [250.5, 260.5, 270.5, 280.5] and list(rows.in_sumo_log) == [True, True, True, False]
 
 

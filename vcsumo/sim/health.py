@@ -22,10 +22,13 @@ braking, or a VC follower's commanded force — slows by g·i more than its brak
 on 25 ‰), above an ``emergencyDecel`` set from the brake alone
 (:attr:`~vcsumo.rolling_stock.RollingStock.sumo_emergency_decel_mps2`).  The monitor records every
 step at which a train decelerated above its vType's ``emergencyDecel`` (whoever drives it) with the
-rule of braking beyond service above — the train's strongest service brake with its running
-resistance and the steepest up-grade under it; an event whose step was within that is *explained*
-(grade-assisted, no braking effort beyond service), every other one — beyond service, or not
-matched to a recorded step — is *real* and makes the run unhealthy.
+brake its driver may use there, with its running resistance and the steepest up-grade under it: a
+train SUMO drives its strongest service brake (the rule of braking beyond service above: it plans
+with nothing else), a train vcsumo drives its strongest emergency brake (its safety layers apply the
+emergency brake by design and the VC summary counts every application; before, it was judged
+against service too, so the same application was real on a climb and unseen on the level).  An
+event whose step was within that is *explained* (grade-assisted), every other one — beyond it, or
+not matched to a recorded step — is *real* and makes the run unhealthy.
 """
 
 from __future__ import annotations
@@ -74,10 +77,22 @@ class HardBraking:
     gradient_permille: float
     """The steepest gradient under the train (+ rising), ‰."""
     driven_by_sumo: bool
+    emergency_limit_mps2: float = math.nan
+    """A step vcsumo's driver drove: the strongest emergency deceleration there (brake at the top of
+    its range, running resistance, steepest up-grade under the train), m/s² (nan: SUMO drove it)."""
 
     @property
     def beyond_service(self) -> bool:
         return self.decel_mps2 > self.service_limit_mps2 + DECEL_TOLERANCE_MPS2
+
+    @property
+    def beyond_its_brake(self) -> bool:
+        """Braking the train may not show: a train SUMO drives beyond its service brake (it plans
+        with nothing else), one vcsumo drives beyond its emergency brake (its safety layers apply
+        the emergency brake by design, counted in the VC summary), whatever the grade."""
+        if self.driven_by_sumo:
+            return self.beyond_service
+        return self.decel_mps2 > self.emergency_limit_mps2 + DECEL_TOLERANCE_MPS2
 
 
 @dataclass
@@ -87,15 +102,16 @@ class SumoBrakingVerdict:
     warnings: int = 0
     """SUMO's total (every warning, written or aggregated)."""
     explained: int = 0
-    """Warnings of steps braked within the service brake (the grade made the deceleration)."""
+    """Warnings of steps braked within the brake the train's driver may use (:attr:`HardBraking.beyond_its_brake`:
+    service for SUMO's, emergency for vcsumo's; the grade made the rest of the deceleration)."""
     real: int = 0
-    """The others: braking beyond service, or no recorded step to explain them."""
+    """The others: braking beyond that brake, or no recorded step to explain them."""
     rows: list[dict] = field(default_factory=list)
     """One row per recorded step and per written warning no step matched (:data:`SUMO_BRAKING_COLUMNS`)."""
 
 
 SUMO_BRAKING_COLUMNS = ["time_s", "train", "lane", "decel_mps2", "sumo_decel_mps2", "wished_mps2", "severity", "service_limit_mps2",
-                        "gradient_permille", "speed_mps", "driven_by_sumo", "in_sumo_log", "verdict", "reason"]
+                        "emergency_limit_mps2", "gradient_permille", "speed_mps", "driven_by_sumo", "in_sumo_log", "verdict", "reason"]
 """Columns of sumo_emergency_brakings.csv: ``time_s`` the loop's time, at the end of the step (SUMO's
 warning names its start, one step length earlier); ``decel_mps2`` the loop's, ``sumo_decel_mps2``
 SUMO's (two decimals); ``in_sumo_log`` — SUMO wrote this warning one by one
@@ -314,9 +330,10 @@ class HealthMonitor:
         if beyond and not h._beyond:
             h.beyond_service_events += 1
         h._beyond = beyond
-        if decel > self._sumo_warn[train_id]:  # a step SUMO may warn of: judged by the same rule, whoever drives
+        if decel > self._sumo_warn[train_id]:  # a step SUMO may warn of: judged against the brake its driver may use
             _, g_high = p.profile.gradient_range(s_m - p.stock.length_m, s_m)
-            h.hard_brakings.append(HardBraking(time_s, s_m, v_mps, decel, self._service_limit(train_id, s_m, v_mps), 1000.0 * g_high, driven_by_sumo))
+            e_lim = math.nan if driven_by_sumo else strongest_decel(p.stock, self.model.assumptions, "emergency", v_mps + 1.0, g_high)
+            h.hard_brakings.append(HardBraking(time_s, s_m, v_mps, decel, self._service_limit(train_id, s_m, v_mps), 1000.0 * g_high, driven_by_sumo, e_lim))
         # end of movement authority: passing it (moving beyond it) is an overrun; a train standing where
         # it was placed (a departure at a platform whose exit signal stands at its front) passed nothing
         past = driven_by_sumo and authority_m < -AUTHORITY_TOLERANCE_M
@@ -376,24 +393,29 @@ class HealthMonitor:
                 v.rows.append(_row(t_end, ev.vehicle, None, ev, "real", "no step of the train at that time decelerated above its vType's emergencyDecel"))
                 continue
             pool[ev.vehicle].remove(rec)
-            verdict = "real" if rec.beyond_service else "explained"
+            verdict = "real" if rec.beyond_its_brake else "explained"
             v.real += verdict == "real"
             v.explained += verdict == "explained"
             v.rows.append(_row(rec.time_s, ev.vehicle, rec, ev, verdict, _reason(rec)))
         rest = [(tid, r) for tid, rs in pool.items() for r in rs]
-        within = sum(not r.beyond_service for _, r in rest)
+        within = sum(not r.beyond_its_brake for _, r in rest)
         beyond = len(rest) - within
         n_rest = max(0, v.warnings - len(written))
         real_rest = max(n_rest - within, min(n_rest, beyond))
         v.real += real_rest
         v.explained += n_rest - real_rest
         for tid, r in sorted(rest, key=lambda x: (x[1].time_s, x[0])):
-            v.rows.append(_row(r.time_s, tid, r, None, "real" if r.beyond_service else "explained", _reason(r)))
+            v.rows.append(_row(r.time_s, tid, r, None, "real" if r.beyond_its_brake else "explained", _reason(r)))
         v.rows.sort(key=lambda row: (row["time_s"], row["train"]))
         return v
 
 
 def _reason(r: HardBraking) -> str:
+    if not r.driven_by_sumo:
+        terms = f"emergency brake at the top of its range, running resistance and {r.gradient_permille:+.1f} ‰ under the train; vcsumo drove it"
+        if r.beyond_its_brake:
+            return f"beyond its emergency brake: {r.decel_mps2:.3f} m/s² > {r.emergency_limit_mps2:.3f} m/s² ({terms})"
+        return f"within its emergency brake: {r.decel_mps2:.3f} m/s² <= {r.emergency_limit_mps2:.3f} m/s² ({terms})"
     terms = f"service brake at the top of its box, running resistance and {r.gradient_permille:+.1f} ‰ under the train"
     if r.beyond_service:
         return f"beyond the service brake: {r.decel_mps2:.3f} m/s² > {r.service_limit_mps2:.3f} m/s² ({terms})"
@@ -406,6 +428,7 @@ def _row(time_s: float, train: str, rec: HardBraking | None, ev: SumoEmergencyBr
         "decel_mps2": round(rec.decel_mps2, 4) if rec else None, "sumo_decel_mps2": ev.decel_mps2 if ev else None,
         "wished_mps2": ev.wished_mps2 if ev else None, "severity": ev.severity if ev else None,
         "service_limit_mps2": round(rec.service_limit_mps2, 4) if rec else None,
+        "emergency_limit_mps2": round(rec.emergency_limit_mps2, 4) if rec and not rec.driven_by_sumo else None,
         "gradient_permille": round(rec.gradient_permille, 2) if rec else None, "speed_mps": round(rec.speed_mps, 3) if rec else None,
         "driven_by_sumo": rec.driven_by_sumo if rec else None, "in_sumo_log": ev is not None, "verdict": verdict, "reason": reason,
     }
