@@ -72,7 +72,8 @@ def test_a_campaign_with_a_cbf_file_weaker_than_its_set_is_one_error_line_before
     weak = tmp_path / "weak_cbf.yaml"
     weak.write_text(shipped.replace("distance: model\n", "distance: model\nleader_braking: service\n"))
     out = tmp_path / "campaign"
-    code = main(["-q", "study", "safety", "--scenarios", "2", "--controllers", "cbf-cbc", "--cbf", str(weak), "--workers", "1", "--out", str(out)])
+    code = main(["study", "safety", "--scenarios", "2", "--controllers", "cbf-cbc", "--cbf", str(weak), "--workers", "1", "--out", str(out)])
     assert code == 2 and not out.exists()
     err = capsys.readouterr().err
     assert f"{weak}: leader_braking: 'service' is weaker than the assumption set 'etcs_typical'" in err
+    assert err.strip().splitlines() == [next(x for x in err.strip().splitlines() if x.startswith("error:"))]  # one line, no progress bar before it

@@ -56,7 +56,7 @@ def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: in
     """Monte Carlo safety campaign: leader emergency brakes, lossy delayed channel, outages, uncertain and heterogeneous trains, odometry errors."""
     from vcsumo.engine.campaign import CampaignFailed, check_scheduler, check_workers
     from vcsumo.studies.safety import (
-        SafetyCampaign, bar_met, describe_run_faults, run_faults, run_safety_campaign, summarize_safety, write_safety_report,
+        SafetyCampaign, bar_met, check_campaign, describe_run_faults, run_faults, run_safety_campaign, summarize_safety, write_safety_report,
     )
 
     try:
@@ -71,6 +71,7 @@ def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: in
         raise InputError(None, "--" + str(loc).replace("_", "-"), err["msg"]) from None
     n_workers = check_workers(workers)
     check_scheduler(scheduler)
+    check_campaign(cfg)  # lines, trains, controllers, parameter files and the set: one error line before any progress is shown
     if out is None:
         out = Path("results") / f"safety-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
     t0 = time.perf_counter()
