@@ -70,3 +70,22 @@ def test_a_set_with_stronger_assumptions_consumes_more_and_vc_keeps_the_coupled_
         a = capacity_consumption(line, net.topology, trains, regime, pairs, model=base, step_s=STEP_S).cycle_s.sum()
         b = capacity_consumption(line, net.topology, trains, regime, pairs, model=worse, step_s=STEP_S).cycle_s.sum()
         assert b > a, (regime, a, b)
+
+
+def test_a_timetable_longer_than_the_window_is_judged_in_its_busiest_window(tmp_path, line_factory, network_factory):
+    # ten trains a minute apart, then five ten minutes apart from 4,000 s: the busiest hour is the first ten alone
+    # (before, all fifteen were compressed into one hour: a full day on italy_av_north was 1,017 % of an hour, now 73.9 %)
+    line, net = line_factory("felez_test"), network_factory("felez_test")
+    path = write(tmp_path / "two.yaml", "name: two\nline: felez_test\nservices:\n"
+                 "  - {id: A, train: felez2019, origin: ORIG, destination: STOP, departure: 0, repeat: {count: 10, every_s: 60}}\n"
+                 "  - {id: B, train: felez2019, origin: ORIG, destination: STOP, departure: 4000, repeat: {count: 5, every_s: 600}}\n")
+    tt, p = load_timetable(path, line)
+    trains = plan_trains(tt, p, line, net.topology, dt=STEP_S)
+    both = capacity_consumption(line, net.topology, trains, "fbs", step_s=STEP_S)
+    first = capacity_consumption(line, net.topology, [t for t in trains if t.service == "A"], "fbs", step_s=STEP_S)
+    row, ref = (df[(df.direction == "up") & (df.section == "ORIG-STOP")].iloc[0] for df in (both, first))
+    assert row.trains == 15 and row.trains_in_window == 10 and ref.trains_in_window == 10
+    assert row.occupation_s == ref.occupation_s and row.cycle_s == ref.cycle_s and row.peak_window_start_s == ref.peak_window_start_s
+    # the sparse hour alone: five trains, less
+    later = capacity_consumption(line, net.topology, [t for t in trains if t.service == "B"], "fbs", step_s=STEP_S)
+    assert later[(later.direction == "up") & (later.section == "ORIG-STOP")].iloc[0].occupation_s < row.occupation_s

@@ -74,8 +74,12 @@ train ahead of it is released.  The *occupation time* is the time from the first
 start to the last blocking-time end of the compressed timetable — for two identical trains on a
 uniform section, one minimum headway plus one train's whole stair,
 (D + B + L)/v + (D + n·B + L)/v.  Consumption = occupation / window × 100 %
-(``consumption_pct``), the window being the timetable's hour (``window_s`` = 3600 s: all of a
-timetable's trains are taken as running in it).
+(``consumption_pct``) in the busiest window of ``window_s`` (3600 s: the peak hour) of the
+section: for every train, the trains entering the section within the window from it are compressed
+together, and the window with the largest occupation is reported (:func:`peak_windows`;
+``peak_window_start_s``, ``trains_in_window``; the cyclic figure its own busiest window).  A
+timetable of one hour is compressed whole; before, every train of a longer timetable was compressed
+into the one window (italy_av_north ``full_day``: 1,017 % of an hour).
 
 On a long section the occupation time contains one whole passage of a train (76 km of Bologna -
 Firenze: about 1,100 s, 30 % of the hour, with a single train), which hides the difference
@@ -100,11 +104,11 @@ import pandas as pd
 
 from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
-from vcsumo.network_file import Network
 from vcsumo.running_time import time_at
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.signalling.assumptions import load_assumptions
-from vcsumo.signalling.blocking_time import BrakingRule, fbs_blocking_times
+from vcsumo.signalling.blocking_time import fbs_blocking_times
+from vcsumo.signalling.line_sections import line_sections
 from vcsumo.signalling.regimes.base import SupervisedBraking
 from vcsumo.signalling.scheduled_run import at_time_zero, departure_index, pattern_key, route_end_s, timetable_run
 from vcsumo.signalling.separation import SeparationModel
@@ -115,7 +119,7 @@ UIC_REGIMES = ("fbs", "mb", "vc")
 DEFAULT_WINDOW_S = 3600.0
 SECTION_COLUMNS = [
     "regime", "direction", "section", "from_km", "to_km", "length_m", "blocks", "trains", "scheduled_span_s",
-    "occupation_s", "window_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct",
+    "occupation_s", "window_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct", "peak_window_start_s", "trains_in_window",
 ]
 
 
@@ -159,62 +163,6 @@ class GapRule:
 
     def distance(self, v, s=None):
         return np.zeros_like(np.asarray(v, dtype=float)) + self.gap_m
-
-
-# ---------------------------------------------------------------------------------------------
-# Sections
-
-
-@dataclass(frozen=True)
-class Section:
-    """A line section: the main track of one direction between two boundaries."""
-
-    direction: str
-    from_km: float
-    to_km: float
-    from_name: str
-    to_name: str
-    main: str = "main"
-    """Topology section of the main line (a network of lines: ``<line>.main``)."""
-
-    @property
-    def label(self) -> str:
-        return f"{self.from_name}-{self.to_name}" if self.main == "main" else f"{self.main[:-5]}:{self.from_name}-{self.to_name}"
-
-    @property
-    def length_m(self) -> float:
-        return abs(self.to_km - self.from_km) * 1000.0
-
-
-def line_sections(line: Line, topo: Topology) -> list[Section]:
-    """Every main-line section of both directions, in running order (see the module docstring);
-    a network of lines: of every line's main line, bounded also where the lines join."""
-    if isinstance(line, Network):
-        mains = []
-        for name, view in line.lines.items():
-            joins = {round(j.meets.km, 6): f"J:{j.id}" for j in line.spec.joins if j.meets.line == name}
-            joins |= {round(view.data.km_start if j.end.at == "start" else view.data.km_end, 6): f"J:{j.id}"
-                      for j in line.spec.joins if j.end.line == name and j.end.at in ("start", "end")}
-            mains.append((f"{name}.main", view.data, joins))
-    else:
-        mains = [("main", line.data, {})]
-    out: list[Section] = []
-    for main, d, joins in mains:
-        for direction in ("up", "down"):
-            try:
-                track = topo.track_for(main, direction)
-            except KeyError:  # pragma: no cover - every built line has both
-                continue
-            bounds: dict[float, str] = {round(d.km_start, 6): "start", round(d.km_end, 6): "end"} | joins
-            for p in topo.platforms.values():
-                if p.track == track.id:
-                    bounds[round(p.km_stop, 6)] = p.station_id
-            for br in d.branches:
-                bounds.setdefault(round(br.junction_km, 6), f"J:{br.id}")
-            kms = sorted(bounds, reverse=not track.increasing)
-            for a, b in zip(kms, kms[1:]):
-                out.append(Section(direction, a, b, bounds[a], bounds[b], main))
-    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -303,6 +251,33 @@ def compress(starts: np.ndarray, ends: np.ndarray, pair_starts: dict[tuple[int, 
     return Compression(shift, occupation, cycle if math.isfinite(cycle) else occupation)
 
 
+def peak_windows(S: np.ndarray, E: np.ndarray, pair_starts: dict[tuple[int, int], np.ndarray], entries: np.ndarray,
+                 window_s: float) -> tuple[tuple[float, float, int], tuple[float, float, int]]:
+    """The busiest window of a section's trains (rows of ``S``, ``E`` in train order, entering the
+    section at ``entries``, s): for every train, the trains entering within ``window_s`` from it are
+    compressed together (:func:`compress`); returns (occupation s, window start s, trains) of the
+    window with the largest occupation and the same of the largest cyclic occupation.  Windows that
+    are part of an earlier one are not evaluated (they occupy no more).  A timetable whose trains all
+    enter within one window is compressed whole, as before."""
+    n = len(entries)
+    best_occ, best_cyc = (-math.inf, math.nan, 0), (-math.inf, math.nan, 0)
+    last_end = -1
+    for i in range(n):
+        k = int(np.searchsorted(entries, entries[i] + window_s, side="left"))
+        if k <= last_end:
+            continue  # within the window from an earlier train
+        last_end = k
+        sub = {(a - i, b - i): row for (a, b), row in pair_starts.items() if i <= a < k and i <= b < k}
+        comp = compress(S[i:k], E[i:k], sub)
+        if comp.occupation_s > best_occ[0]:
+            best_occ = (comp.occupation_s, float(entries[i]), k - i)
+        if comp.cycle_s > best_cyc[0]:
+            best_cyc = (comp.cycle_s, float(entries[i]), k - i)
+        if k == n:
+            break
+    return best_occ, best_cyc
+
+
 # ---------------------------------------------------------------------------------------------
 # A whole timetable
 
@@ -387,7 +362,7 @@ def capacity_consumption(
         members.sort(key=lambda m: (m[0], m[1]))
         per_train = []
         vc_starts: dict[str, np.ndarray] = {}
-        for _, tid, t, s_a, s_b in members:
+        for entry, tid, t, s_a, s_b in members:
             prof = t.profile
             braking = SupervisedBraking(model, t.stock, prof, step_s)
             if regime == "fbs":
@@ -410,7 +385,7 @@ def capacity_consumption(
             if pkey not in stair_cache:
                 stair_cache[pkey] = _train_stairs(patterns[pattern_key(t)], t, markers, s_b, rule, setup, release, offsets)
             st = stair_cache[pkey]
-            per_train.append((tid, keys, st["t_start_s"].to_numpy() + t.depart_s, st["t_end_s"].to_numpy() + t.depart_s))
+            per_train.append((tid, keys, st["t_start_s"].to_numpy() + t.depart_s, st["t_end_s"].to_numpy() + t.depart_s, entry))
             if tid in followers and followers[tid] in by_id:
                 # a convoy follower approaches its own leader at the coupled gap (relative braking, no report
                 # period, no fixed times: its starts are moved by the report period the leader's releases carry)
@@ -422,12 +397,12 @@ def capacity_consumption(
                 vc_starts[tid] = stair_cache[vkey]["t_start_s"].to_numpy() + t.depart_s
         if not per_train:
             continue
-        all_keys = sorted({k for _, ks, _, _ in per_train for k in ks})
+        all_keys = sorted({k for _, ks, _, _, _ in per_train for k in ks})
         col = {k: i for i, k in enumerate(all_keys)}
         S = np.full((len(per_train), len(all_keys)), np.nan)
         E = np.full_like(S, np.nan)
         vc_rows: dict[str, np.ndarray] = {}
-        for r, (tid, ks, ts, te) in enumerate(per_train):
+        for r, (tid, ks, ts, te, _) in enumerate(per_train):
             idx = [col[k] for k in ks]
             S[r, idx] = ts
             E[r, idx] = te
@@ -435,22 +410,22 @@ def capacity_consumption(
                 row = np.full(len(all_keys), np.nan)
                 row[idx] = vc_starts[tid]
                 vc_rows[tid] = row
-        order = [tid for tid, _, _, _ in per_train]
+        order = [tid for tid, _, _, _, _ in per_train]
         pos = {tid: i for i, tid in enumerate(order)}
         pair_starts = {}
         for tid, row in vc_rows.items():
             lead = followers[tid]
             if lead in pos and pos[lead] < pos[tid]:
                 pair_starts[(pos[lead], pos[tid])] = row
-        comp = compress(S, E, pair_starts)
-        occ = comp.occupation_s
+        entries = np.array([x[4] for x in per_train])
+        (occ, occ_from, occ_n), (cyc, _, _) = peak_windows(S, E, pair_starts, entries, window_s)
         span = float(np.nanmax(E) - np.nanmin(S))
         rows.append({
             "regime": regime, "direction": sec.direction, "section": sec.label, "from_km": sec.from_km, "to_km": sec.to_km,
             "length_m": round(sec.length_m, 1), "blocks": len(all_keys), "trains": len(per_train),
             "scheduled_span_s": round(span, 2), "occupation_s": round(occ, 2), "window_s": window_s,
-            "consumption_pct": round(100.0 * occ / window_s, 2), "cycle_s": round(comp.cycle_s, 2),
-            "cyclic_consumption_pct": round(100.0 * comp.cycle_s / window_s, 2),
+            "consumption_pct": round(100.0 * occ / window_s, 2), "cycle_s": round(cyc, 2),
+            "cyclic_consumption_pct": round(100.0 * cyc / window_s, 2), "peak_window_start_s": round(occ_from, 2), "trains_in_window": occ_n,
         })
     return pd.DataFrame(rows, columns=SECTION_COLUMNS)
 

@@ -18,7 +18,8 @@ from vcsumo.signalling.separation import SeparationModel
 from vcsumo.studies.batch_run import RunSpec
 
 UIC_COLUMNS = ["timetable", "timetable_sha256", "regime", "assumptions", "step_length_s", "window_s", "direction", "section", "from_km", "to_km",
-               "length_m", "blocks", "trains", "scheduled_span_s", "occupation_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct"]
+               "length_m", "blocks", "trains", "scheduled_span_s", "occupation_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct",
+               "peak_window_start_s", "trains_in_window"]
 
 
 def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step_length_s: float, block_length_m: float | None) -> pd.DataFrame:

@@ -253,7 +253,7 @@ class BatchConfig(CommandConfig):
     scheduler: Scheduler = None
     step_length_s: Step = Field(default=0.5, description="SUMO step, s (0–2 s)", json_schema_extra={"option": "--step-length", "unit": "s"})
     block_length_m: BlockLength = None
-    window_s: float = Field(default=3600.0, ge=60, le=86400, description="UIC 406 observation window, s (1 min–1 day)", json_schema_extra={"unit": "s"})
+    window_s: float = Field(default=3600.0, ge=60, le=86400, description="UIC 406 observation window, s (1 min–1 day): each section is judged in its busiest window of this length (the peak hour by default)", json_schema_extra={"unit": "s"})
     retry_failed: bool = Field(default=False, description="Run again the runs that failed in an earlier invocation")
     out: Out = Field(default=None, description="Batch folder (default: results/batch-<line>-<hash of line and delays>; the same command resumes there); "
                      "in a study file relative to the current folder, without '..'")
