@@ -89,3 +89,52 @@ def test_a_timetable_longer_than_the_window_is_judged_in_its_busiest_window(tmp_
     # the sparse hour alone: five trains, less
     later = capacity_consumption(line, net.topology, [t for t in trains if t.service == "B"], "fbs", step_s=STEP_S)
     assert later[(later.direction == "up") & (later.section == "ORIG-STOP")].iloc[0].occupation_s < row.occupation_s
+
+
+STEEP_LINE = """name: steep
+km_start: 0.0
+km_end: 10.0
+tracks: double
+line_speed_kmh: 100
+default_train: weak.yaml
+stations:
+  - {id: A, name: Alpha, km: 1.0, platform_length_m: 300, dwell_s: 30}
+  - {id: B, name: Beta, km: 9.0, platform_length_m: 300, dwell_s: 30}
+gradients:
+  - {from_km: 3.0, to_km: 7.0, permille: -40.0}
+signalling: {block_length_m: 1500}
+"""
+WEAK = """name: weak
+length_m: 200.0
+mass_kg: 400000.0
+rotating_mass_factor: 1.05
+max_speed_kmh: 100.0
+max_traction_n: 200000.0
+max_power_w: 3000000.0
+davis_a_n: 4000.0
+davis_b_n_per_mps: 50.0
+davis_c_n_per_mps2: 5.0
+service_brake_decel_mps2: 0.3
+emergency_brake_decel_mps2: 0.5
+max_jerk_mps3: 0.5
+traction_lag_s: 1.0
+"""
+
+
+def test_a_batch_of_a_train_whose_brake_cannot_hold_it_on_a_descent_fails_its_runs_with_the_reason(tmp_path):
+    # UIC 406 brakes the running profiles on the guaranteed curves: a brake (0.3 m/s² - 10 %) that cannot hold the train on
+    # a 40 permille descent is 'infeasible' as in `vcsumo run`; before, the batch stopped with 'internal error ValueError'
+    import pandas as pd
+
+    from vcsumo.cli.main import main
+
+    write(tmp_path / "steep" / "line.yaml", STEEP_LINE)
+    write(tmp_path / "steep" / "weak.yaml", WEAK)
+    write(tmp_path / "weak.yaml", WEAK)
+    tt = write(tmp_path / "tt.yaml", "name: tt\nline: steep\nservices:\n  - {id: T, train: weak.yaml, origin: A, destination: B, departure: 0}\n")
+    out = tmp_path / "b"
+    code = main(["-q", "batch", "--line", str(tmp_path / "steep" / "line.yaml"), "--timetables", str(tt), "--regimes", "fbs,mb", "--seeds", "1",
+                 "--workers", "1", "--out", str(out)])
+    assert code == 1
+    errors = pd.read_csv(out / "batch.csv")["error"].tolist()
+    assert len(errors) == 2 and all(e.startswith("infeasible: train T: weak: no guaranteed service braking on a -40.0 ‰ descent") for e in errors), errors

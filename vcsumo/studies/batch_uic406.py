@@ -58,7 +58,10 @@ def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step
             continue  # the runs fail with the same error
         cache: dict = {}
         for regime in sorted(regimes):
-            df = capacity_consumption(line, net.topology, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache, model=model)
+            try:
+                df = capacity_consumption(line, net.topology, trains, regime, pairs, window_s=window_s, step_s=step_length_s, cache=cache, model=model)
+            except VcsumoError:
+                break  # infeasible under the set (a brake that does not hold a train on a descent): its runs fail with the error
             df.insert(0, "timetable", spec.timetable)
             df.insert(1, "timetable_sha256", sha)
             df.insert(3, "assumptions", set_name)
