@@ -14,6 +14,11 @@ class VcsumoError(Exception):
     """A problem the user can fix, with a message that names the file and the field."""
 
 
+class InfeasibleBraking(VcsumoError, ValueError):
+    """A train's guaranteed brake cannot hold it on a descent under the assumption set: no run of it
+    can be safe.  (Also a ValueError: callers that add the train and the set catch it as such.)"""
+
+
 class InputError(VcsumoError):
     """A malformed or inconsistent input file (line, timetable, rolling stock, study, controller)."""
 

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vcsumo.dynamics import running_resistance
+from vcsumo.errors import InfeasibleBraking
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.running_time import curve_speed as authority_speed  # the braking curve: v·T + (v² − v_t²)/(2a) ≤ distance
 from vcsumo.signalling.assumptions import AssumptionSet
@@ -278,7 +279,7 @@ class RouteBraking:
         self._v_top = math.inf
         worst = self.brake_part(stock.max_speed_ms) + G * float(g_low.min()) / self.rho
         if worst <= 0.0 and not strongest:
-            raise ValueError(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
+            raise InfeasibleBraking(f"{stock.name}: no guaranteed {self.kind} braking on a {1000 * float(g_low.min()):.1f} ‰ descent")
 
     def brake_part(self, v_mps: float) -> float:
         """Guaranteed (strongest: hardest) deceleration without the gradient at speed v, m/s²; the

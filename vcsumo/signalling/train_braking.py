@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from vcsumo.dynamics import running_resistance
+from vcsumo.errors import InfeasibleBraking
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.units import G
@@ -52,7 +53,7 @@ def guaranteed_decel(stock: RollingStock, assumptions: AssumptionSet, kind: str,
         brake = np.minimum(brake, p_low / (m_high * np.maximum(v_mps, 0.1)))
     a = (brake + a_res / m_high + G * np.minimum(grade_low, 0.0)) / stock.rotating_mass_factor
     if np.any(a <= 0.0):
-        raise ValueError(f"{stock.name}: no guaranteed braking on a {1000 * float(np.min(grade_low)):.1f} ‰ descent")
+        raise InfeasibleBraking(f"{stock.name}: no guaranteed braking on a {1000 * float(np.min(grade_low)):.1f} ‰ descent")
     return float(a) if np.ndim(a) == 0 else a
 
 
@@ -108,7 +109,7 @@ def guaranteed_decel_of_floats(stock: RollingStock, assumptions: AssumptionSet, 
         brake = min(brake, p_low / (m_high * max(v_mps, 0.1)))
     a = (brake + a_res / m_high + G * min(grade_low, 0.0)) / rho
     if a <= 0.0:
-        raise ValueError(f"{stock.name}: no guaranteed braking on a {1000 * grade_low:.1f} ‰ descent")
+        raise InfeasibleBraking(f"{stock.name}: no guaranteed braking on a {1000 * grade_low:.1f} ‰ descent")
     return a
 
 

@@ -410,6 +410,9 @@ def run_tradeoff_study(cfg: TradeoffConfig, out: Path, progress: Callable[[int, 
             raise InputError(None, "--pattern", f"all-stops: {line.name} has no intermediate station after the release point in direction {cfg.direction}")
         for msg in convoys_longer_than_platforms(stops, stock, cfg.convoy_sizes, model.margin_m + STANDSTILL_EXTRA_M):
             warnings.warn(msg, stacklevel=2)
+    at_base = capacities(tl, base, [("mb", 1)])[0]
+    if at_base["error"]:  # the train cannot run the route safely under the study's own set: nothing to trade off
+        raise VcsumoError(f"infeasible: {at_base['error']} on {line.name} ({cfg.direction}) under the assumption set '{base.name}'")
     params = {**cfg.model_dump(mode="json"), "train": stock.name, "assumptions": base.record(), "rule_inputs": {k: sorted(v) for k, v in RULE_INPUTS.items()}}
     with ResultsFolder(out, inputs={"line": line.path}, seed=cfg.seed, params=params) as rf:
         table = tradeoff_table(tl, base, cfg.sweeps(), cfg.convoy_sizes, cfg.grid, progress)
