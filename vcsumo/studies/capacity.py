@@ -51,6 +51,7 @@ import json
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -69,8 +70,8 @@ from vcsumo.rolling_stock import RollingStock
 from vcsumo.results import ResultsFolder, file_digest, write_meta
 from vcsumo.sim.convoy_formation import within_spacing
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
-from vcsumo.studies.capacity_route import (Case, RouteSetup, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gaps, leader_run, route_setup,
-                                           unit_trains)
+from vcsumo.studies.capacity_route import (STANDSTILL_EXTRA_M, Case, RouteSetup, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gaps, leader_run, route_setup,
+                                           convoys_longer_than_platforms, unit_trains)
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.studies.time_distance import TIME_DISTANCE_COLUMNS, TIME_DISTANCE_FILE, time_distance_table
 from vcsumo.timetable import PlannedTrain
@@ -403,6 +404,10 @@ def run_capacity_study(
     cases = [c for c in cases_for(directions, patterns, controllers, convoy_sizes) if c.pattern == "non-stop" or setups[c.direction].stops_full]
     if not cases:
         raise InputError(None, "--patterns", "no case to run (no stopping pattern with a station to stop at in these directions)")
+    for d in directions:  # all-stops convoys longer than a platform: their members stop one after another, the analytic figure is short
+        sizes = sorted({c.convoy_size for c in cases if c.direction == d and c.pattern == "all-stops" and c.regime == "vc" and c.convoy_size > 1})
+        for msg in convoys_longer_than_platforms(setups[d].stops_full, stock, sizes, model.margin_m + STANDSTILL_EXTRA_M):
+            warnings.warn(f"{d}: {msg}", stacklevel=2)
     # VC with one train is moving block: its rows repeat MB's
     todo = [c for c in cases if not (c.regime == "vc" and c.convoy_size == 1)]
     example_of = {}

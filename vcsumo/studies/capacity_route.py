@@ -235,3 +235,27 @@ def initial_convoy_gap(model: SeparationModel, stock: RollingStock, v0: float, s
             need = max(need, rule.required_gap(s_f, setup.depart_speed(s_f), s_l, setup.depart_speed(s_l), dead))
         gap = max(gap, need + 20.0)
     return gap
+
+
+STANDSTILL_EXTRA_M = 2.0
+"""A convoy's members stand the separation model's margin + this apart in a platform (the VC driver's
+standstill gap), m."""
+
+
+def convoys_longer_than_platforms(stops: list[tuple[str, str, float, float, float]], stock: RollingStock, convoy_sizes: list[int],
+                                  standstill_gap_m: float) -> list[str]:
+    """All-stops: one warning per VC convoy size whose members, standing ``standstill_gap_m`` apart,
+    are longer than a platform it stops at (``stops``: :attr:`RouteSetup.stops_full`).  The analytic
+    VC headway stands the convoy in the platform as one train; such a convoy's followers stop one
+    after another, so its figure is a bound the line cannot run (the capacity study simulates it)."""
+    out = []
+    for n in sorted(set(convoy_sizes)):
+        length = n * stock.length_m + (n - 1) * standstill_gap_m
+        short = sorted({(st, plen) for st, _, _, _, plen in stops if plen + 1e-6 < length})
+        if short:
+            names = ", ".join(f"{st} ({plen:g} m)" for st, plen in short)
+            out.append(f"all-stops: a VC convoy of {n} ({n} × {stock.length_m:g} m + {n - 1} × {standstill_gap_m:g} m standstill gap = "
+                       f"{length:g} m) does not fit the platform of {names}; its members stop one after another there, while the analytic VC "
+                       f"headway stands it as one train: VC n={n}'s analytic figure is an upper bound the line cannot run (vcsumo study "
+                       "capacity simulates it)")
+    return out

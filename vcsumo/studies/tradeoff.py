@@ -55,12 +55,10 @@ from vcsumo.rolling_stock import RollingStock
 from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.studies.capacity_route import Case, analytic_headway, check_position_m, convoy_spacing, leader_run, route_setup
+from vcsumo.studies.capacity_route import (STANDSTILL_EXTRA_M, Case, analytic_headway, check_position_m, convoy_spacing,  # noqa: F401 (STANDSTILL_EXTRA_M: also from here)
+                                           convoys_longer_than_platforms, leader_run, route_setup)
 from vcsumo.sim.convoy_plan import load_channel
 
-STANDSTILL_EXTRA_M = 2.0
-"""A convoy's members stand the separation model's margin + this apart in a platform (the VC driver's
-standstill gap), m."""
 SWEPT = ("t2t_delay_bound_s", "braking_uncertainty", "position_error_m")
 """Assumptions the study sweeps (fields of :class:`~vcsumo.signalling.assumptions.AssumptionSet`)."""
 GRID = "grid"
@@ -368,24 +366,6 @@ def load_inputs(cfg: TradeoffConfig) -> tuple[Line, RollingStock, AssumptionSet]
             raise InputError(line.path, "default_train", exc.message) from None
         raise InputError(exc.path, exc.field if exc.path else "--train", exc.message) from None
     return line, stock, load_assumptions(cfg.assumptions)
-
-
-def convoys_longer_than_platforms(stops: list[tuple[str, str, float, float, float]], stock: RollingStock, convoy_sizes: list[int],
-                                  standstill_gap_m: float) -> list[str]:
-    """All-stops: one warning per VC convoy size whose members, standing ``standstill_gap_m`` apart,
-    are longer than a platform it stops at (``stops``: :attr:`RouteSetup.stops_full`).  The analytic
-    VC headway stands the convoy in the platform as one train; such a convoy's followers stop one
-    after another, so its figure is a bound the line cannot run (the capacity study simulates it)."""
-    out = []
-    for n in sorted(set(convoy_sizes)):
-        length = n * stock.length_m + (n - 1) * standstill_gap_m
-        short = sorted({(st, plen) for st, _, _, _, plen in stops if plen + 1e-6 < length})
-        if short:
-            names = ", ".join(f"{st} ({plen:g} m)" for st, plen in short)
-            out.append(f"all-stops: a VC convoy of {n} ({n} × {stock.length_m:g} m + {n - 1} × {standstill_gap_m:g} m standstill gap = "
-                       f"{length:g} m) does not fit the platform of {names}; the analytic rule stands it there as one train, so VC n={n} "
-                       "is an upper bound the line cannot run (its members stop one after another: vcsumo study capacity simulates it)")
-    return out
 
 
 def run_tradeoff_study(cfg: TradeoffConfig, out: Path, progress: Callable[[int, int, str], None] | None = None) -> TradeoffResult:
