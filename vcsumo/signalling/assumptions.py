@@ -66,11 +66,11 @@ class AssumptionSet(StrictModel):
     absolute_braking: Literal["service", "emergency"] = Field(
         default="service",
         description="Brake the safe separation of the absolute-braking rules (FBS, MB) is certified with: the run-health "
-                    "check of every FBS/MB train and convoy leader needs margin + its guaranteed stopping distance on this "
-                    "brake behind the train ahead's rear. Trains are driven on the service brake whatever this says (the "
-                    "approach to the end of authority and of the track, stops, speed restrictions; the analytic headways "
-                    "likewise): 'emergency' counts the emergency brake as the reserve behind that approach, it shortens no "
-                    "headway",
+                    "check of every FBS/MB train and VC convoy leader needs, behind the true rear ahead, the margin, both "
+                    "position errors and its guaranteed stopping distance on this brake after the dead time. Trains are "
+                    "driven on the guaranteed service brake whatever this says (the approach to the end of authority and of "
+                    "the track, stops, speed restrictions, and so the analytic headways): 'emergency' counts the emergency "
+                    "brake as the reserve behind that approach; it changes no running and no headway",
     )
     relative_braking: Literal["emergency", "service"] = Field(
         default="emergency",

@@ -10,10 +10,11 @@ counted separately (they are the safety layer working, reported, not a planning 
 The safe separation is the one of :mod:`vcsumo.signalling.separation`, evaluated on the true
 states: for trains under absolute braking (FBS, MB, convoy leaders) the gap they need to stop
 behind the train ahead's rear with their guaranteed brake after the dead time, plus margin and
-position errors — the brake the assumption set certifies the separation with (``absolute_braking``:
-service, or emergency, the reserve; the trains are driven on the service brake either way, so their
-ends of authority, and the overruns of them, are planned on service); for virtually coupled followers the relative-braking gap against the leader's
-strongest brake (the driver supplies it).  There is no low-speed exemption: standing behind
+position errors — on the brake the assumption set certifies the separation with
+(``absolute_braking``: service, or emergency, the reserve; the trains are driven on the service
+brake either way, so their ends of authority, and the overruns of them, are planned on service);
+for virtually coupled followers the relative-braking gap against the leader's strongest brake (the
+driver supplies it).  There is no low-speed exemption: standing behind
 another train the margin and the position errors remain.
 
 SUMO's own warning "performs emergency braking" (a train's speed fell by more than its vType's
