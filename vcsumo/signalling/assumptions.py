@@ -9,8 +9,11 @@ safety layer (VC guard, CBF distance, run-health monitor, analytic headways):
   train-to-train message it may rely on, the period of the position reports);
 * how uncertain positions are (odometry error of each train) and the margin kept behind the
   leader's rear; the overlap beyond a fixed-block signal; ETCS fixed times;
-* which brake the absolute-braking rules (FBS, MB) plan with (service, the normal approach, the
-  emergency brake being the reserve; or emergency).
+* which brake the safe separation of the absolute-braking rules (FBS, MB) is certified with: the
+  service brake, or the emergency brake as the reserve behind the service-brake approach.  Trains
+  are driven on the service brake either way (ETCS: the service-brake curves lie before the
+  emergency-brake intervention), so this brake changes the certified margin, not the running or
+  the headways.
 
 Every results folder records the set it ran under (its name and its full content in ``meta.json``).
 """
@@ -62,7 +65,12 @@ class AssumptionSet(StrictModel):
     fixed_time_s: float = Field(default=0.0, ge=0.0, le=120.0, description="ETCS fixed times (route setting, MA transmission, reaction), s; lengthen every headway")
     absolute_braking: Literal["service", "emergency"] = Field(
         default="service",
-        description="Brake the absolute-braking rules (FBS, MB) plan the approach to the end of authority with",
+        description="Brake the safe separation of the absolute-braking rules (FBS, MB) is certified with: the run-health "
+                    "check of every FBS/MB train and VC convoy leader needs, behind the true rear ahead, the margin, both "
+                    "position errors and its guaranteed stopping distance on this brake after the dead time. Trains are "
+                    "driven on the guaranteed service brake whatever this says (the approach to the end of authority and of "
+                    "the track, stops, speed restrictions, and so the analytic headways): 'emergency' counts the emergency "
+                    "brake as the reserve behind that approach; it changes no running and no headway",
     )
     relative_braking: Literal["emergency", "service"] = Field(
         default="emergency",

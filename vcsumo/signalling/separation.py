@@ -25,7 +25,12 @@ The rules (positions front of the follower to rear of the leader, m; deceleratio
   difference of stopping distances would be negative); with equal speeds and ``a_f ≤ a_l`` it is
   ``v·T + v²/2·(1/a_f − 1/a_l)``;
 * **absolute braking (MB, FBS)** — :func:`absolute_braking_gap`: ``v·T + v²/(2·a_f)`` behind a
-  point that does not move (the leader's confirmed rear, the end of authority);
+  point that does not move (the leader's confirmed rear, the end of authority).  Trains are
+  *driven* on their guaranteed service brake — every approach (end of authority, end of the track,
+  stops, speed limits), so every supervised curve and every analytic headway
+  (:class:`RouteBraking`'s default); the set's ``absolute_braking`` is the brake the safe
+  separation is *certified* with (:meth:`SeparationModel.absolute_gap`, the run-health check):
+  ``emergency`` counts the emergency brake as the reserve that guarantees the stop;
 * the permitted speed towards a target (a braking curve): :func:`authority_speed`; the largest
   follower speed a relative-braking rule admits: :func:`relative_braking_speed`.
 
@@ -160,7 +165,8 @@ class SeparationModel:
         return self.assumptions.dead_time_s
 
     def follower_decel(self, stock: RollingStock, v_mps: float, grade_low: float = 0.0, kind: str | None = None):
-        """Guaranteed deceleration of a follower under the absolute rule (``kind`` None) or ``kind``."""
+        """Guaranteed deceleration of a follower with the brake its safe separation is certified with
+        (``kind`` None: the set's ``absolute_braking``) or ``kind``."""
         return guaranteed_decel(stock, self.assumptions, kind or self.assumptions.absolute_braking, v_mps, grade_low)
 
     def vc_decels(self, follower: RollingStock, leader: RollingStock, v_f: float, v_l: float, grade_f: float = 0.0,
@@ -185,20 +191,23 @@ class SeparationModel:
         return self.margin_m + relative_braking_gap(v_mps, v_mps, a_f, a_l, self.dead_time_s + age)
 
     def absolute_gap(self, follower: RollingStock, v_mps, grade_low=0.0, margin_m: float | None = None, kind: str | None = None):
-        """Gap a train needs to stop behind a fixed point (the leader's true rear), m — the safety
-        check of every absolute-braking train (numpy arrays of v and grade accepted)."""
+        """Gap a train needs to stop behind a fixed point (the leader's true rear) with the brake the
+        set certifies the separation with (``absolute_braking``, or ``kind``), m — the safety check
+        of every absolute-braking train (numpy arrays of v and grade accepted)."""
         a_f = self.follower_decel(follower, v_mps, grade_low, kind)
         margin = (self.assumptions.safety_margin_m if margin_m is None else margin_m) + self.assumptions.position_uncertainty_m
         return margin + absolute_braking_gap(np.asarray(v_mps, dtype=float) if np.ndim(v_mps) else v_mps, a_f, self.dead_time_s)
 
     def mb_gap(self, follower: RollingStock, v_mps, grade_low=0.0):
         """Gap a moving-block follower keeps at steady speed v behind a leader at v, m: the absolute
-        rule behind the rear as of the last position report, which may be a report period old."""
-        return self.absolute_gap(follower, v_mps, grade_low) + v_mps * self.assumptions.position_report_period_s
+        rule on the service brake it is driven on, behind the rear as of the last position report,
+        which may be a report period old."""
+        return self.absolute_gap(follower, v_mps, grade_low, kind="service") + v_mps * self.assumptions.position_report_period_s
 
     def fbs_braking_distance(self, follower: RollingStock, v_mps, grade_low=0.0):
-        """Distance a fixed-block train needs to stop at a signal (its end of authority), m."""
-        a_f = self.follower_decel(follower, v_mps, grade_low)
+        """Distance a fixed-block train needs to stop at a signal (its end of authority) on the service
+        brake it is driven on, m."""
+        a_f = self.follower_decel(follower, v_mps, grade_low, "service")
         return absolute_braking_gap(v_mps, a_f, self.dead_time_s) + self.assumptions.position_error_m
 
 
@@ -229,12 +238,16 @@ class RouteBraking:
     * :meth:`permitted_speed` — the braking curve towards a target (supervision, running times);
     * :meth:`stopping_distance` — how far the train runs before it stands (health monitor,
       analytic headways).
+
+    ``kind``: the brake, by default the service brake every train is driven on (the supervision,
+    the interlocking's locking distances, the running times and analytic headways); the run-health
+    monitor certifies the separation with the set's ``absolute_braking``.
     """
 
-    def __init__(self, model: "SeparationModel", stock: RollingStock, profile, kind: str | None = None, strongest: bool = False):
+    def __init__(self, model: "SeparationModel", stock: RollingStock, profile, kind: str = "service", strongest: bool = False):
         self.model = model
         self.stock = stock
-        self.kind = kind or model.assumptions.absolute_braking
+        self.kind = kind
         self.strongest = strongest
         a = model.assumptions
         low, high = brake_range(stock, a, self.kind)

@@ -10,8 +10,11 @@ counted separately (they are the safety layer working, reported, not a planning 
 The safe separation is the one of :mod:`vcsumo.signalling.separation`, evaluated on the true
 states: for trains under absolute braking (FBS, MB, convoy leaders) the gap they need to stop
 behind the train ahead's rear with their guaranteed brake after the dead time, plus margin and
-position errors; for virtually coupled followers the relative-braking gap against the leader's
-strongest brake (the driver supplies it).  There is no low-speed exemption: standing behind
+position errors — on the brake the assumption set certifies the separation with
+(``absolute_braking``: service, or emergency, the reserve; the trains are driven on the service
+brake either way, so their ends of authority, and the overruns of them, are planned on service);
+for virtually coupled followers the relative-braking gap against the leader's strongest brake (the
+driver supplies it).  There is no low-speed exemption: standing behind
 another train the margin and the position errors remain.
 
 SUMO's own warning "performs emergency braking" (a train's speed fell by more than its vType's
@@ -160,13 +163,20 @@ class HealthMonitor:
         self.model = model
         self.plans = {t.id: t for t in trains}
         self.trains: dict[str, TrainHealth] = {t.id: TrainHealth() for t in trains}
-        shared: dict[tuple[int, int], RouteBraking] = {}  # one per rolling stock and route (a service's trains share them)
-        self.braking = {}
+        shared: dict[tuple[int, int, str], RouteBraking] = {}  # one per rolling stock, route and brake (a service's trains share them)
+        certified = model.assumptions.absolute_braking
+        self.braking: dict[str, RouteBraking] = {}
+        """Per train: the brake its safe separation is certified with (the set's ``absolute_braking``)."""
+        self.service: dict[str, RouteBraking] = {}
+        """Per train: the service brake it is driven on (the supervision's and the interlocking's
+        curves; the same objects as :attr:`braking` when the set certifies on service)."""
         for t in trains:
-            try:
-                self.braking[t.id] = shared.get((id(t.stock), id(t.profile))) or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile))
-            except ValueError as exc:  # its brake does not hold it on a descent of its route: no run of it can be safe
-                raise VcsumoError(f"infeasible: train {t.id}: {exc} of its route under the assumption set '{model.assumptions.name}'") from None
+            for kind, into in ((certified, self.braking), ("service", self.service)):
+                key = (id(t.stock), id(t.profile), kind)
+                try:
+                    into[t.id] = shared.get(key) or shared.setdefault(key, RouteBraking(model, t.stock, t.profile, kind))
+                except ValueError as exc:  # its brake does not hold it on a descent of its route: no run of it can be safe
+                    raise VcsumoError(f"infeasible: train {t.id}: {exc} of its route under the assumption set '{model.assumptions.name}'") from None
         self.relative: dict[tuple[str, str], RelativeBraking] = {}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6 + SPEED_ROUNDING_MPS
         self.collision_rows: list[tuple] = []

@@ -28,8 +28,8 @@ switch of :class:`JunctionPolicy`:
   guaranteed emergency brake are counted (``signal_overruns``).
 
 The braking curves are those of the separation model and the loop's supervision of the trains SUMO
-drives (:class:`vcsumo.signalling.separation.RouteBraking`: the follower's guaranteed brake of the
-assumption set's absolute rule on the route's gradients): to an end of authority after the set's
+drives (:class:`vcsumo.signalling.separation.RouteBraking`: the follower's guaranteed service
+brake on the route's gradients): to an end of authority after the set's
 dead time + 1.5 steps, to a lower limit after 1.5 steps (an operational target, as in
 :mod:`vcsumo.sim.supervision`).  A cap never asks for more than the emergency brake: the command is
 bounded below by the speed the train reaches after one step of emergency braking (eq. 1b, as in the
@@ -66,7 +66,7 @@ class _Member:
     params: TrainParams
     targets: list[tuple[float, float]]
     braking: RouteBraking
-    """Guaranteed braking of the absolute rule (braking curves)."""
+    """Guaranteed service braking (the braking curves, as the supervision's)."""
     emergency: RouteBraking
     """Guaranteed emergency braking (can it still stop before its end of authority?)."""
     joins_at_merge: bool

@@ -219,8 +219,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
         convoys = {t.id: scn.driver.predecessor_of(t.id) for t in scn.trains} if scn.driver is not None else {}
-        locking = MergeLocking(model, topo, scn.trains, health.braking, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
-        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking, braking=health.braking)
+        locking = MergeLocking(model, topo, scn.trains, health.service, scn.merge_orders, signals=signals, convoys={k: v for k, v in convoys.items() if v})
+        supervisor = BrakingCurveSupervisor(model, scn.rules.supervision, scn.trains, dt, signals, locking=locking, braking=health.service)
     # the highest speed SUMO can give a train in one step from rest: full traction, no resistance, its route's steepest descent
     start_speed = {t.id: dt * (t.stock.max_traction_n / t.stock.mass_kg - G * min(0.0, t.profile.gradient_range(0.0, t.profile.length_m)[0])) for t in scn.trains}
     driver = scn.driver

@@ -31,6 +31,13 @@ would run faster.  Targets:
   where the train ahead was ``fixed_time_s`` ago (MB: from its last report sent by then), so every
   headway grows by about that time.
 
+Every curve is planned on the train's guaranteed **service** brake — the brake SUMO brakes the
+trains it drives with (speed mode 31) and the normal approach of a train in service (ETCS: the
+service-brake curves lie before the emergency-brake intervention) — whatever brake the assumption
+set certifies the separation with: an ``absolute_braking: emergency`` set counts the emergency
+brake as the reserve behind these curves (the run-health monitor's safe separation), never as the
+brake of the approach.
+
 The permitted speed for the next step accounts for the step itself (SUMO's semi-implicit Euler
 moves the train ``v·Δt`` at the new speed before it can brake again): the dead time is lengthened by
 1.5·Δt, as in :func:`vcsumo.dynamics.discrete_stop_speed`.
@@ -73,11 +80,8 @@ class _Curves:
     end_s: float | None
     signals: list[float]
     braking: RouteBraking
-    """The train's guaranteed service braking: its station stops and speed restrictions (and, being
-    the weaker brake, every reach bound)."""
-    authority: RouteBraking
-    """Its braking under the absolute rule (the set's ``absolute_braking``): the end of movement
-    authority and the end of the track."""
+    """The train's guaranteed service braking: every target (stops, speed restrictions, the end of
+    movement authority and of the track) and every reach bound."""
     restriction_s: list[float] = field(default_factory=list)
     """Positions of ``restrictions`` (for a bisection)."""
     next_stop: int = 0
@@ -147,7 +151,6 @@ class BrakingCurveSupervisor:
         its platform short of the stopping point has been served there only if SUMO says so; None:
         never assumed served short of the stopping point."""
         """Approach locking at merging junctions (:class:`vcsumo.sim.interlocking.MergeLocking`), or None."""
-        kind = model.assumptions.absolute_braking
         braking_of = braking
         shared: dict[tuple, RouteBraking] = {}
         for t in trains:
@@ -161,17 +164,15 @@ class BrakingCurveSupervisor:
                 # the end of the track; at an open end of the network SUMO ends the trip with a stop whose
                 # window takes the train held short of it by this rule (timetable.routes_xml)
                 end_s = t.profile.length_m if t.end_pos_m is None else float(t.profile.starts_m[-1] + t.end_pos_m)
-            try:  # the trains' braking under the absolute rule (``braking``: already built, e.g. the health monitor's)
-                braking = (braking_of or {}).get(t.id) or shared.get((id(t.stock), id(t.profile))) \
-                    or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile, kind))
-                service = braking if kind == "service" else shared.get((id(t.stock), id(t.profile), "service")) \
-                    or shared.setdefault((id(t.stock), id(t.profile), "service"), RouteBraking(model, t.stock, t.profile, "service"))
+            try:  # the trains' service braking (``braking``: already built, e.g. the health monitor's)
+                service = (braking_of or {}).get(t.id) or shared.get((id(t.stock), id(t.profile))) \
+                    or shared.setdefault((id(t.stock), id(t.profile)), RouteBraking(model, t.stock, t.profile, "service"))
             except ValueError:
                 g_low, _ = t.profile.gradient_range(0.0, t.profile.length_m)
-                raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed {kind} braking on the steepest descent of its route "
+                raise VcsumoError(f"train {t.id} ({t.stock.name}) has no guaranteed service braking on the steepest descent of its route "
                                   f"({1000 * g_low:.1f} ‰) under the assumption set '{model.assumptions.name}'") from None
             restrictions = t.profile.restriction_targets()
-            self.curves[t.id] = _Curves(t, restrictions, stops, end_s, sorted((signals or {}).get(t.id, [])), service, braking,
+            self.curves[t.id] = _Curves(t, restrictions, stops, end_s, sorted((signals or {}).get(t.id, [])), service,
                                         [x for x, _ in restrictions], platform_from=[x - length if length > 0 else x for x, length in at])
 
         v_cap = max(t.stock.max_speed_ms for t in trains) * 1.2 + 10.0 if trains else 0.0
@@ -382,11 +383,11 @@ class BrakingCurveSupervisor:
                 if vp < best:
                     best, reason = vp, "stop"
         if end_target - s_m <= reach:
-            vp = c.authority.permitted_speed(s_m, end_target, 0.0, dead + 1.5 * dt, v_mps)
+            vp = br.permitted_speed(s_m, end_target, 0.0, dead + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "end"
         if d_ma <= reach:
-            vp = c.authority.permitted_speed(s_m, s_m + d_ma, 0.0, dead + 1.5 * dt, v_mps)
+            vp = br.permitted_speed(s_m, s_m + d_ma, 0.0, dead + 1.5 * dt, v_mps)
             if vp < best:
                 best, reason = vp, "authority"
         return Permitted(best, reason, d_ma)

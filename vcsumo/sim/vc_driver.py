@@ -133,7 +133,7 @@ class _Follower:
     linked: bool = False
     """The link to the predecessor is up (set at the first step both run)."""
     braking: RouteBraking | None = None
-    """The follower's guaranteed braking on its route under the absolute rule (stop hand-over)."""
+    """The follower's guaranteed service braking on its route, the supervision's (stop hand-over)."""
     stood_since_s: float = math.nan
     formation: Formation = field(default_factory=Formation)
     """Since when it stands at a shared stop behind its predecessor, s."""

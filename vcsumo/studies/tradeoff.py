@@ -65,7 +65,7 @@ GRID = "grid"
 """``parameter`` of the T2T delay × braking uncertainty grid rows (the coordinates are in the
 ``t2t_delay_bound_s`` and ``braking_uncertainty`` columns)."""
 
-_ABSOLUTE = ("braking_uncertainty", "reaction_time_s", "brake_build_up_s", "position_error_m", "fixed_time_s", "absolute_braking")
+_ABSOLUTE = ("braking_uncertainty", "reaction_time_s", "brake_build_up_s", "position_error_m", "fixed_time_s")
 RULE_INPUTS: dict[str, frozenset[str]] = {
     "fbs": frozenset(_ABSOLUTE + ("overlap_m",)),
     "mb": frozenset(_ABSOLUTE + ("safety_margin_m", "position_report_period_s")),
@@ -73,8 +73,10 @@ RULE_INPUTS: dict[str, frozenset[str]] = {
 }
 """The assumption-set fields each regime's analytic headway depends on.
 
-Every regime: the follower's guaranteed braking (uncertainty, which brake, reaction and build-up:
-the dead time) and the leader's run on its guaranteed braking curve; the position error (FBS: the
+Every regime: the follower's guaranteed service braking (uncertainty, reaction and build-up: the
+dead time; not ``absolute_braking``, the brake the separation is certified with: trains approach
+their end of authority on the service brake whatever it says) and the leader's run on its
+guaranteed braking curve; the position error (FBS: the
 follower stops its error short of the signal and the leader's rear is an overlap plus its error
 beyond the next; MB, VC: twice in the margin behind the confirmed rear); the fixed times.  FBS: the
 overlap.  MB: the margin and the position-report period.  VC: MB's (between convoys), and inside a

@@ -21,8 +21,10 @@ SUPERVISION_REACTION_STEPS = 1.5
 class SupervisedBraking:
     """Braking distance of a train under the absolute rule, along its route, m.
 
-    D(v, s): after the dead time T + 1.5·Δt, guaranteed braking integrated over the gradient
-    profile (:class:`vcsumo.signalling.separation.RouteBraking`) — the rule the supervisor enforces.
+    D(v, s): after the dead time T + 1.5·Δt, guaranteed service braking integrated over the
+    gradient profile (:class:`vcsumo.signalling.separation.RouteBraking`) — the rule the supervisor
+    enforces: trains approach their end of authority on the service brake whatever brake the set
+    certifies the separation with (``absolute_braking``), so the headways do not depend on it.
     """
 
     model: SeparationModel
@@ -36,7 +38,7 @@ class SupervisedBraking:
 
     def distance(self, v, s=None):
         """D(v, s) on the route (s None: at the route's start), m (arrays accepted)."""
-        br = RouteBraking(self.model, self.stock, self.profile)
+        br = RouteBraking(self.model, self.stock, self.profile, "service")
         v_arr = np.atleast_1d(np.asarray(v, dtype=float))
         s_arr = np.zeros_like(v_arr) if s is None else np.broadcast_to(np.atleast_1d(np.asarray(s, dtype=float)), v_arr.shape)
         out = np.array([br.stopping_distance(float(sk), float(vk), self.dead_time_s) for vk, sk in zip(v_arr, s_arr)])
