@@ -71,3 +71,21 @@ def test_all_stops_capacity_found_with_a_station_before_a_merge(in_tmp):
     assert rows["healthy"].all() and rc == 0
     dev = (rows["headway_sim_s"] - rows["headway_analytic_s"]).abs() / rows["headway_analytic_s"]
     assert (dev < 0.03).all(), rows[["headway_sim_s", "headway_analytic_s"]]
+
+
+def test_no_sustainable_headway_says_why_in_words():
+    """The failed case's error named the case as a Python repr ("for Case(direction='up', regime='fbs',
+    controller=None, ...)") and not why the probes were hindered; it now says what hindered the last one."""
+    import math
+
+    from vcsumo.studies.min_headway import Probe
+
+    pr = Probe(620.0, pd.DataFrame(columns=["measuring_point", "train", "time_s"]), {}, {"collisions": 0, "gap_violations": 0})
+    pr.speed_deficit["end"] = 0.13
+    pr.delays["end"] = 0.0
+    assert pr.hindrance("end", 2.0) == "a later train ran slower than the first at the same place, 0.13 m/s beyond the tolerance"
+    pr.speed_deficit["end"] = -0.1
+    pr.delays["end"] = math.inf
+    assert pr.hindrance("end", 2.0) == "a later train never reached the point"
+    pr.delays["end"] = 0.5
+    assert pr.hindrance("end", 2.0) == "" and pr.ok("end", 2.0)

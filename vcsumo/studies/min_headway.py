@@ -90,6 +90,21 @@ class Probe:
     def safe(self) -> bool:
         return self.summary.get("collisions", 0) == 0 and self.summary.get("gap_violations", 0) == 0
 
+    def hindrance(self, label: str, tolerance_s: float) -> str:
+        """Why this probe is hindered at ``label``, in words ('' when it is not)."""
+        why = []
+        if not self.safe():
+            why.append(f"{self.summary.get('gap_violations', 0)} gap violations, {self.summary.get('collisions', 0)} collisions")
+        deficit = self.speed_deficit.get(label, -math.inf)
+        if deficit == math.inf:
+            why.append("a later train started late or never reached the point")
+        elif deficit > 0:
+            why.append(f"a later train ran slower than the first at the same place, {deficit:.2f} m/s beyond the tolerance")
+        lost = self.delays.get(label, math.inf)
+        if lost > tolerance_s:
+            why.append("a later train never reached the point" if lost == math.inf else f"a later train lost {lost:.1f} s (tolerance {tolerance_s:g} s)")
+        return "; ".join(why)
+
     def ok(self, label: str, tolerance_s: float) -> bool:
         """Unhindered at ``label``: no speed deficit beyond tolerance (if measured), no lost time beyond ``tolerance_s``."""
         if not self.safe():
