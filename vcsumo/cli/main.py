@@ -84,13 +84,17 @@ def lines_cmd() -> None:
     for name in names:
         ln = load_line(name)
         out_console.print(f"[bold]{name}[/]: {ln.data.title} ({ln.data.km_start}–{ln.data.km_end} km, {ln.data.tracks} track, "
-                          f"{len(ln.data.stations)} stations, {len(ln.data.branches)} branches)")
+                          f"{_count(len(ln.data.stations), 'station')}, {_count(len(ln.data.branches), 'branch', 'branches')})")
     for name in shipped_networks():
         net = load_network(name)
-        out_console.print(f"[bold]{name}[/] (network): {net.title} (lines {', '.join(net.lines)}; {len(net.all_station_ids())} stations)")
+        out_console.print(f"[bold]{name}[/] (network): {net.title} (lines {', '.join(net.lines)}; {_count(len(net.all_station_ids()), 'station')})")
     for name in shipped_rolling_stock():
         st = load_rolling_stock(name)
         out_console.print(f"  train [bold]{name}[/]: {st.title}")
+
+
+def _count(n: int, one: str, many: str | None = None) -> str:
+    return f"{n} {one if n == 1 else many or one + 's'}"
 
 
 # ----------------------------------------------------------------------------------------------

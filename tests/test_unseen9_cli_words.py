@@ -1,0 +1,40 @@
+"""Counted words in the terminal output agree with their number (unseen9, 2026-11-28).
+
+``vcsumo lines`` on a VCSUMO_HOME of our own said "1 stations, 0 branches" and "1 branches"; a
+capacity table with one column left out said "1 more column (headway_analytic_s) are in ...".
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from tests.conftest import DATA, write
+from vcsumo.cli.main import main
+from vcsumo.cli.ui import build_table
+
+
+def test_one_column_left_out_is_said_in_the_singular():
+    df = pd.DataFrame({"a_long_column_name_s": [1.0], "another_long_column_m": [2.0]})
+    _table, notes = build_table(df, "t", width=12, csv_path="o/x.csv")
+    assert notes == ["1 more column (another_long_column_m) is in o/x.csv"]
+
+
+def test_lines_counts_stations_and_branches_in_words(tmp_path, monkeypatch, capsys):
+    import shutil
+
+    home = tmp_path / "home"
+    write(home / "networks" / "one" / "line.yaml", """name: one
+km_start: 0.0
+km_end: 5.0
+line_speed_kmh: 120
+stations:
+  - {id: AAA, name: Ashby, km: 4.5, platform_length_m: 200}
+signalling: {block_length_m: 1500}
+branches:
+  - {id: spur, name: Spur, junction_km: 2.0, leaves_towards: end, length_m: 2000, speed_kmh: 80, diverging_speed_kmh: 40}
+""")
+    shutil.copytree(DATA / "networks" / "rolling_stock", home / "networks" / "rolling_stock")
+    monkeypatch.setenv("VCSUMO_HOME", str(home))
+    assert main(["lines"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "1 station, 1 branch)" in out
