@@ -139,6 +139,7 @@ def reproduce() -> None:
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool, out: Path | None) -> None:
     """Felez, Kim & Borrelli (2019) §IV-A: SH / NP / MB stop distance and delay, convoy, horizon sweep."""
+    from vcsumo.line import package_data
     from vcsumo.reproduce.report import reproduce_felez2019
     from vcsumo.results import ResultsFolder, default_out
 
@@ -151,7 +152,8 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
     out = out or default_out("reproduce", "felez2019")
     with ResultsFolder(out, params={"strategies": strats, "horizon": horizon}) as rf:
         with progress_bar() as prog, progress_task(prog, "felez2019") as upd:
-            table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
+            with package_data():  # the paper's own files, whatever $VCSUMO_HOME holds
+                table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
     print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
                 ["strategy", "variant", "a_follower_mps2", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m",
                  "collisions"],
@@ -165,6 +167,7 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
     """Terlizzi, Liuzza & Glielmo (2024) OS1 (delays 3 s / 0.8 s), OS2 (delay estimator on/off) and the authors'-code OS1 (the shipped experiment files)."""
+    from vcsumo.line import package_data
     from vcsumo.reproduce.report import reproduce_terlizzi2024
     from vcsumo.results import ResultsFolder, default_out
 
@@ -172,7 +175,8 @@ def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
     out = out or default_out("reproduce", "terlizzi2024")
     with ResultsFolder(out, params={"scenarios": scen}) as rf:
         with progress_bar() as prog, progress_task(prog, "terlizzi2024") as upd:
-            summary = reproduce_terlizzi2024(rf.path, scen, progress=upd)
+            with package_data():
+                summary = reproduce_terlizzi2024(rf.path, scen, progress=upd)
     cols = [c for c in ["run", "coupled_distance_m", "coupled_interdistance_m", "emergency_activations", "min_gap_m", "both_stopped_gap_m", "true_barrier_max",
                         "robust_barrier_max"] if c in summary]
     print_table(summary, "Terlizzi et al. (2024) — reproduced", cols)
