@@ -38,3 +38,15 @@ branches:
     assert main(["lines"]) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert "1 station, 1 branch)" in out
+
+
+def test_safety_and_batch_tables_name_the_csv_of_a_column_left_out(in_tmp, monkeypatch, capsys):
+    """At 100 columns the safety table left out time_lost_s_mean and the batch table uic406_cyc_% and
+    collisions, saying only "are left out": the README promises the CSV that holds them is named."""
+    monkeypatch.setenv("COLUMNS", "100")
+    assert main(["-q", "study", "safety", "--scenarios", "2", "--controllers", "cbc,cbf-cbc", "--workers", "1", "--out", "s"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "left out" not in out and "is in s/report/safety_summary.csv" in out
+    assert main(["-q", "batch", "--line", "felez_test", "--timetables", "base", "--regimes", "fbs", "--seeds", "1", "--workers", "1", "--out", "b"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "left out" not in out and "are in b/report/batch_summary.csv" in out

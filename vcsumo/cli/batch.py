@@ -61,7 +61,8 @@ def batch(cfg: BatchConfig) -> None:
         view["uic406_%"] = view["capacity_consumption_pct"]
         view["uic406_cyc_%"] = view["capacity_consumption_cyclic_pct"]
         print_table(view, f"batch — {line.name}", ["timetable", "regime", "controller", "runs", "failed", "unhealthy_runs", "punct_3min_%", "punct_5min_%",
-                                                    "mean_arrival_delay_s", "knock_on_delay_s", "uic406_%", "uic406_cyc_%", "collisions"])
+                                                    "mean_arrival_delay_s", "knock_on_delay_s", "uic406_%", "uic406_cyc_%", "collisions"],
+                    csv_path=folder / "report" / "batch_summary.csv")
     out_console.print(f"{len(df)} runs: {df.attrs['new_runs']} run now, {df.attrs['resumed_runs']} already in batch.csv; "
                       f"{df.attrs['failed_runs']} failed")
     n_unhealthy = int(unhealthy(df).sum())
