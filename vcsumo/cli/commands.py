@@ -202,7 +202,8 @@ def headway(cfg: HeadwayConfig) -> None:
     out_console.print(f"wrote {out / 'headway.csv'}")
     if len(df) == 0:
         raise CampaignFailed(f"no headway was measured: no measuring point lies after the release point of a direction ({out / 'headway.csv'} is empty)")
-    require_clean("the headway study", len(df), 0, count_not_healthy(df["healthy"]), out / "headway.csv", noun="rows")
+    failed = df["error"].fillna("").astype(str) != ""
+    require_clean("the headway study", len(df), int(failed.sum()), count_not_healthy(df.loc[~failed, "healthy"]), out / "headway.csv", noun="rows")
 
 
 @config_command(HeadwayConfig, "headway")
