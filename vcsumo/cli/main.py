@@ -250,10 +250,11 @@ _add_verbosity_options(cli)
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     setup_logging(0, console)
+    from vcsumo.loaded_files import noting_loaded_files
     from vcsumo.engine.campaign import Interrupted, sigterm_as_interrupt
 
     try:
-        with sigterm_as_interrupt():  # SIGTERM (timeout, kill) cleans up like Ctrl-C
+        with sigterm_as_interrupt(), noting_loaded_files():  # SIGTERM (timeout, kill) cleans up like Ctrl-C; meta.json names every file read
             cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
     except VcsumoError as exc:
         for problem in getattr(exc, "problems", None) or [exc]:  # several problems of one input: one line each
