@@ -67,8 +67,8 @@ def batch(cfg: BatchConfig) -> None:
                       f"{df.attrs['failed_runs']} failed")
     n_unhealthy = int(unhealthy(df).sum())
     if n_unhealthy:  # a run that is not healthy is never shown as clean
-        out_console.print(f"  {n_unhealthy} finished runs are not healthy (see healthy, stops_skipped, overspeed_events, authority_overruns, "
-                          f"gap_violations in batch.csv)", markup=False, highlight=False)
+        out_console.print(f"  {n_unhealthy} finished runs are not healthy (see healthy and the run-health "
+                          f"counters beside it in batch.csv)", markup=False, highlight=False)
     failed = df[df["status"] != "ok"]
     if len(failed):
         shown = failed.drop_duplicates("error").head(5)
