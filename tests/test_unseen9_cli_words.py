@@ -50,3 +50,21 @@ def test_safety_and_batch_tables_name_the_csv_of_a_column_left_out(in_tmp, monke
     assert main(["-q", "batch", "--line", "felez_test", "--timetables", "base", "--regimes", "fbs", "--seeds", "1", "--workers", "1", "--out", "b"]) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert "left out" not in out and "are in b/report/batch_summary.csv" in out
+
+
+def test_build_network_says_wrote_only_when_it_built(in_tmp, capsys):
+    """'vcsumo build-network' printed 'wrote <cache>/line.net.xml' also when it reused the cached network."""
+    line = write(in_tmp / "l" / "line.yaml", """name: cached_u9
+km_start: 0.0
+km_end: 4.0
+line_speed_kmh: 120
+stations:
+  - {id: AAA, name: Ashby, km: 3.5, platform_length_m: 200}
+signalling: {block_length_m: 1500}
+""")
+    assert main(["build-network", "--line", str(line), "--force"]) == 0
+    out = capsys.readouterr().out
+    assert "wrote " in out and "reused" not in out
+    assert main(["build-network", "--line", str(line)]) == 0
+    out = capsys.readouterr().out
+    assert "wrote " not in out and out.count("reused (cached) ") == 2
