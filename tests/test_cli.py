@@ -160,7 +160,7 @@ def test_verbose_and_quiet_on_the_group_and_on_the_command(capsys):
     for args in (["-v", "build-network", "--line", "felez_test"], ["build-network", "--line", "felez_test", "-v"]):
         assert main(args) == 0
         cap = capsys.readouterr()
-        assert "network of felez_test reused from the cache" in cap.err and "wrote " in cap.out
+        assert "network of felez_test reused from the cache" in cap.err and "reused (cached) " in cap.out and "wrote " not in cap.out
 
 
 def test_quiet_run_prints_results_only(in_tmp, capsys):

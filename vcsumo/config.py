@@ -22,6 +22,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, field_validator
 
 from vcsumo.errors import InputError
+from vcsumo.loaded_files import note_loaded
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -342,8 +343,10 @@ def _yaml_kind(data: Any) -> str:
 
 
 def load_model(model: type[M], path: str | Path) -> M:
-    """Read ``path`` as YAML and validate it against ``model``."""
-    return parse_model(model, read_yaml(Path(path)), path)
+    """Read ``path`` as YAML and validate it against ``model`` (noted: :mod:`vcsumo.loaded_files`)."""
+    out = parse_model(model, read_yaml(Path(path)), path)
+    note_loaded(Path(path), model.__name__)
+    return out
 
 
 def _allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:

@@ -20,6 +20,7 @@ Conventions
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -258,18 +259,35 @@ def check_line(line: LineFile) -> list[tuple[str, str]]:
 # Locating and loading line files
 
 
+_PACKAGE_ONLY = [0]
+"""How many :func:`package_data` blocks are open (then ``$VCSUMO_HOME`` is not read)."""
+
+
 def project_root() -> Path:
     """The folder holding ``networks/``, ``routes/``, ``controllers/`` and ``studies/``.
 
     The data shipped inside the package (``vcsumo/data``, installed with it as package data), or
-    ``$VCSUMO_HOME`` if set (a folder of the same shape, e.g. your own lines and timetables).
+    ``$VCSUMO_HOME`` if set (a folder of the same shape, e.g. your own lines and timetables) —
+    except inside :func:`package_data`.
     """
     import os
 
     env = os.environ.get("VCSUMO_HOME")
-    if env:
+    if env and not _PACKAGE_ONLY[0]:
         return Path(env).resolve()
     return Path(__file__).resolve().parent / "data"
+
+
+@contextmanager
+def package_data():
+    """Within this block every name resolves in the package's own data, whatever ``$VCSUMO_HOME`` says:
+    the papers' reproductions run the shipped experiment files with the trains and controller
+    parameters they name (with a home of one's own lines they were not found)."""
+    _PACKAGE_ONLY[0] += 1
+    try:
+        yield
+    finally:
+        _PACKAGE_ONLY[0] -= 1
 
 
 def shipped_lines() -> list[str]:

@@ -134,6 +134,7 @@ def write_meta(folder: Path, inputs: dict[str, Path] | None = None, seed: int | 
                wall_time_s: float = 0.0, extra: dict[str, Any] | None = None) -> None:
     """``meta.json`` of a results folder: command, time, versions, inputs with SHA-256, seed, parameters."""
     inputs = {**_RECORDING.get(), **(inputs or {})}
+    inputs.update(read_inputs({Path(v).resolve() for v in inputs.values() if v}))
     meta = {
         "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
         "created": _dt.datetime.now().isoformat(timespec="seconds"),
@@ -145,6 +146,29 @@ def write_meta(folder: Path, inputs: dict[str, Path] | None = None, seed: int | 
     }
     meta.update(extra or {})
     write_json(Path(folder) / "meta.json", meta)
+
+
+INPUT_KINDS = {"RollingStock": "train", "AssumptionSet": "assumptions", "TimetableFile": "timetable", "LineFile": "line", "NetworkFile": "network",
+               "DelayConfig": "delays", "ChannelConfig": "channel", "GuardConfig": "guard", "CBFConfig": "cbf", "CbcParams": "controller",
+               "MPCSettings": "controller", "CruiseConfig": "controller"}
+"""How a file read as each model is named among a ``meta.json``'s inputs (``train:emu140``)."""
+
+
+def read_inputs(known: set[Path]) -> dict[str, Path]:
+    """The files the command read (:func:`vcsumo.loaded_files.loaded_files`) that ``known`` does not
+    hold, each as ``<kind>:<file stem>``."""
+    from vcsumo.loaded_files import loaded_files
+
+    out: dict[str, Path] = {}
+    for path, model in loaded_files().items():
+        if path in known:
+            continue
+        key = f"{INPUT_KINDS.get(model, model)}:{path.stem}"
+        k = 2
+        while key in out:
+            key, k = f"{INPUT_KINDS.get(model, model)}:{path.stem}-{k}", k + 1
+        out[key] = path
+    return out
 
 
 _RECORDING: contextvars.ContextVar[dict[str, Path]] = contextvars.ContextVar("recorded_inputs", default={})

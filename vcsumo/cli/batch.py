@@ -61,13 +61,14 @@ def batch(cfg: BatchConfig) -> None:
         view["uic406_%"] = view["capacity_consumption_pct"]
         view["uic406_cyc_%"] = view["capacity_consumption_cyclic_pct"]
         print_table(view, f"batch — {line.name}", ["timetable", "regime", "controller", "runs", "failed", "unhealthy_runs", "punct_3min_%", "punct_5min_%",
-                                                    "mean_arrival_delay_s", "knock_on_delay_s", "uic406_%", "uic406_cyc_%", "collisions"])
+                                                    "mean_arrival_delay_s", "knock_on_delay_s", "uic406_%", "uic406_cyc_%", "collisions"],
+                    csv_path=folder / "report" / "batch_summary.csv")
     out_console.print(f"{len(df)} runs: {df.attrs['new_runs']} run now, {df.attrs['resumed_runs']} already in batch.csv; "
                       f"{df.attrs['failed_runs']} failed")
     n_unhealthy = int(unhealthy(df).sum())
     if n_unhealthy:  # a run that is not healthy is never shown as clean
-        out_console.print(f"  {n_unhealthy} finished runs are not healthy (see healthy, stops_skipped, overspeed_events, authority_overruns, "
-                          f"gap_violations in batch.csv)", markup=False, highlight=False)
+        out_console.print(f"  {n_unhealthy} finished runs are not healthy (see healthy and the run-health "
+                          f"counters beside it in batch.csv)", markup=False, highlight=False)
     failed = df[df["status"] != "ok"]
     if len(failed):
         shown = failed.drop_duplicates("error").head(5)

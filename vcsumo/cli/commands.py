@@ -23,11 +23,18 @@ log = logging.getLogger(__name__)
 
 
 
+def in_cache(line, block_length_m: float | None, force: bool = False) -> bool:
+    """Whether the line's SUMO network will be reused from the cache (not built)."""
+    from vcsumo.sim.network import cache_dir, fingerprint
+
+    return (cache_dir() / "networks" / line.name / fingerprint(line, block_length_m) / "line.net.xml").is_file() and not force
+
+
 def network(line, block_length_m: float | None, force: bool = False):
     """The line's SUMO network (built or reused from the cache), saying which with ``-v``."""
-    from vcsumo.sim.network import build_network, cache_dir, fingerprint
+    from vcsumo.sim.network import build_network
 
-    cached = (cache_dir() / "networks" / line.name / fingerprint(line, block_length_m) / "line.net.xml").is_file() and not force
+    cached = in_cache(line, block_length_m, force)
     t0 = time.perf_counter()
     net = build_network(line, block_length_m, force=force)
     log.info("network of %s %s %s (%.1f s)", line.name, "reused from the cache:" if cached else "built:", net.folder, time.perf_counter() - t0)
@@ -38,12 +45,14 @@ def network(line, block_length_m: float | None, force: bool = False):
 def build_network(cfg: BuildNetworkConfig) -> None:
     """Build (or reuse) the SUMO network of a line."""
     line = cfg.inputs()
+    reused = in_cache(line, cfg.block_length_m, cfg.force)
     net = network(line, cfg.block_length_m, force=cfg.force)
     topo = net.topology
     signals = sum(1 for n in topo.nodes.values() if n.signal)
     out_console.print(f"network of {line.name}: {len(topo.edges)} edges, {signals} signals, {len(topo.platforms)} platforms")
-    out_console.print(f"wrote {net.net_file}")
-    out_console.print(f"wrote {net.stations_file}")
+    did = "reused (cached)" if reused else "wrote"  # nothing is written when the cache holds it
+    out_console.print(f"{did} {net.net_file}")
+    out_console.print(f"{did} {net.stations_file}")
 
 
 @config_command(BuildNetworkConfig, "build-network")
@@ -88,7 +97,8 @@ def health_line(summary: dict, reasons: list[str], cut_short: bool = False) -> s
             f"{s.get('stops_scheduled', 0)} (skipped {s.get('stops_skipped', 0)}, short dwell {s.get('short_dwells', 0)}), min margin to the safe separation {metres(margin)}, "
             f"min gap {metres(gap)}, gap violations {s.get('gap_violations', 0)}, collisions {s.get('collisions', 0)}, "
             f"overspeed {s.get('overspeed_events', 0)}, braking beyond service {s.get('beyond_service_brakings', 0)}, "
-            f"authority overruns {s.get('authority_overruns', 0)}, SUMO emergency brakings {s.get('emergency_brakes', 0)}")
+            f"authority overruns {s.get('authority_overruns', 0)}, SUMO emergency brakings {s.get('sumo_emergency_brakings', 0)}, "
+            f"SUMO emergency stops {s.get('sumo_emergency_stops', 0)}, SUMO stop warnings {s.get('sumo_stop_warnings', 0)}, teleports {s.get('teleports', 0)}")
 
 
 def cut_short_note(summary: dict) -> str:
@@ -202,7 +212,8 @@ def headway(cfg: HeadwayConfig) -> None:
     out_console.print(f"wrote {out / 'headway.csv'}")
     if len(df) == 0:
         raise CampaignFailed(f"no headway was measured: no measuring point lies after the release point of a direction ({out / 'headway.csv'} is empty)")
-    require_clean("the headway study", len(df), 0, count_not_healthy(df["healthy"]), out / "headway.csv", noun="rows")
+    failed = df["error"].fillna("").astype(str) != ""
+    require_clean("the headway study", len(df), int(failed.sum()), count_not_healthy(df.loc[~failed, "healthy"]), out / "headway.csv", noun="rows")
 
 
 @config_command(HeadwayConfig, "headway")

@@ -84,13 +84,17 @@ def lines_cmd() -> None:
     for name in names:
         ln = load_line(name)
         out_console.print(f"[bold]{name}[/]: {ln.data.title} ({ln.data.km_start}–{ln.data.km_end} km, {ln.data.tracks} track, "
-                          f"{len(ln.data.stations)} stations, {len(ln.data.branches)} branches)")
+                          f"{_count(len(ln.data.stations), 'station')}, {_count(len(ln.data.branches), 'branch', 'branches')})")
     for name in shipped_networks():
         net = load_network(name)
-        out_console.print(f"[bold]{name}[/] (network): {net.title} (lines {', '.join(net.lines)}; {len(net.all_station_ids())} stations)")
+        out_console.print(f"[bold]{name}[/] (network): {net.title} (lines {', '.join(net.lines)}; {_count(len(net.all_station_ids()), 'station')})")
     for name in shipped_rolling_stock():
         st = load_rolling_stock(name)
         out_console.print(f"  train [bold]{name}[/]: {st.title}")
+
+
+def _count(n: int, one: str, many: str | None = None) -> str:
+    return f"{n} {one if n == 1 else many or one + 's'}"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -135,6 +139,7 @@ def reproduce() -> None:
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool, out: Path | None) -> None:
     """Felez, Kim & Borrelli (2019) §IV-A: SH / NP / MB stop distance and delay, convoy, horizon sweep."""
+    from vcsumo.line import package_data
     from vcsumo.reproduce.report import reproduce_felez2019
     from vcsumo.results import ResultsFolder, default_out
 
@@ -147,7 +152,8 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
     out = out or default_out("reproduce", "felez2019")
     with ResultsFolder(out, params={"strategies": strats, "horizon": horizon}) as rf:
         with progress_bar() as prog, progress_task(prog, "felez2019") as upd:
-            table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
+            with package_data():  # the paper's own files, whatever $VCSUMO_HOME holds
+                table = reproduce_felez2019(rf.path, strats, horizon, sweep=not no_sweep, convoy=not no_convoy, progress=upd)
     print_table(table, "Felez et al. (2019) §IV-A — reproduced vs paper",
                 ["strategy", "variant", "a_follower_mps2", "stop_distance_m", "paper_stop_distance_m", "stop_delay_s", "paper_stop_delay_s", "gap_at_rest_m", "min_gap_m",
                  "collisions"],
@@ -161,6 +167,7 @@ def felez2019_cmd(strategies: str, horizon: int, no_sweep: bool, no_convoy: bool
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
     """Terlizzi, Liuzza & Glielmo (2024) OS1 (delays 3 s / 0.8 s), OS2 (delay estimator on/off) and the authors'-code OS1 (the shipped experiment files)."""
+    from vcsumo.line import package_data
     from vcsumo.reproduce.report import reproduce_terlizzi2024
     from vcsumo.results import ResultsFolder, default_out
 
@@ -168,7 +175,8 @@ def terlizzi2024_cmd(scenario: str, out: Path | None) -> None:
     out = out or default_out("reproduce", "terlizzi2024")
     with ResultsFolder(out, params={"scenarios": scen}) as rf:
         with progress_bar() as prog, progress_task(prog, "terlizzi2024") as upd:
-            summary = reproduce_terlizzi2024(rf.path, scen, progress=upd)
+            with package_data():
+                summary = reproduce_terlizzi2024(rf.path, scen, progress=upd)
     cols = [c for c in ["run", "coupled_distance_m", "coupled_interdistance_m", "emergency_activations", "min_gap_m", "both_stopped_gap_m", "true_barrier_max",
                         "robust_barrier_max"] if c in summary]
     print_table(summary, "Terlizzi et al. (2024) — reproduced", cols)
@@ -242,10 +250,11 @@ _add_verbosity_options(cli)
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     setup_logging(0, console)
+    from vcsumo.loaded_files import noting_loaded_files
     from vcsumo.engine.campaign import Interrupted, sigterm_as_interrupt
 
     try:
-        with sigterm_as_interrupt():  # SIGTERM (timeout, kill) cleans up like Ctrl-C
+        with sigterm_as_interrupt(), noting_loaded_files():  # SIGTERM (timeout, kill) cleans up like Ctrl-C; meta.json names every file read
             cli.main(args=argv, prog_name="vcsumo", standalone_mode=False)
     except VcsumoError as exc:
         for problem in getattr(exc, "problems", None) or [exc]:  # several problems of one input: one line each

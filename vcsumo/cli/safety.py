@@ -83,7 +83,7 @@ def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: in
     write_safety_report(out, cfg, df, summary, time.perf_counter() - t0)
     print_table(summary, f"safety campaign ({cfg.loop} loop) — {cfg.scenarios} scenarios", ["controller", "supervised", "scenarios", "failed_runs",
                  "scenarios_with_violation", "violation_rate_upper95", "collisions", "min_margin_m", "max_true_barrier_m", "barrier_breaches",
-                 "emergency_activations_mean", "time_lost_s_mean"])
+                 "emergency_activations_mean", "time_lost_s_mean"], csv_path=out / "report" / "safety_summary.csv")
     for _, r in summary.iterrows():
         out_console.print(f"  {r['controller']}: {r['scenarios_with_violation']} of {r['scenarios']} scenarios with a separation violation or a collision; "
                           f"95 % upper bound on the violation probability {r['violation_rate_upper95']:.2%}", markup=False, highlight=False)

@@ -23,7 +23,7 @@ OPTION_OF = {"delays_s": "--delays", "position_errors_m": "--position-errors", "
 
 
 UNHEALTHY_COUNTERS = ("gap_violations", "collisions", "below_separation_time_s", "overspeed_events", "beyond_service_brakings", "authority_overruns",
-                      "stops_skipped", "short_dwells", "sumo_emergency_stops", "emergency_brakes")
+                      "stops_skipped", "short_dwells", "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings", "teleports")
 """The counters a simulated check is not healthy for, named in its line (every one the capacity row's health rests on)."""
 
 

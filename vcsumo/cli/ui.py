@@ -187,7 +187,8 @@ def build_table(df: pd.DataFrame, title: str, columns: list[str] | None = None, 
         shown.remove(next(c for c in order if c in shown))
     dropped = [c for c in cols if c not in shown]
     if dropped:
-        where = f" are in {csv_path}" if csv_path else " are left out"
+        verb = "are" if len(dropped) > 1 else "is"
+        where = f" {verb} in {csv_path}" if csv_path else f" {verb} left out"
         notes.append(f"{len(dropped)} more column{'s' if len(dropped) > 1 else ''} ({', '.join(dropped)}){where}")
     # widths: every column its widest cell and longest header word; what is left goes to headers,
     # first so that each fits on two lines, then on one, the cheapest first (rich's own shrinking

@@ -93,7 +93,7 @@ def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastruct
     a2.set_ylabel("speed [km/h]")
     a2.set_ylim(bottom=0)
     a2.grid(alpha=0.3)
-    distance_axis(a2, infra, axis="x", signals=False)
+    distance_axis(a2, infra, axis="x", signals=False, section=sec)
     handles, names = a1.get_legend_handles_labels()
     if len(handles) > LEGEND_MAX:  # the first trains, the signals, and how many more
         keep = [k for k, n in enumerate(names) if n.startswith("signal")]

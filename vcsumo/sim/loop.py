@@ -288,8 +288,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                 if 0 <= ridx < tr.n_edges and tr.edges[ridx] == edge:  # on its route's edge (not inside a junction)
                     tr.s = tr.sync_s = tr.starts[ridx] + lane_pos
                     tr.sync_odo = odo
-                else:
-                    tr.s = tr.sync_s + (odo - tr.sync_odo)
+                else:  # inside a junction: its internal lane (SUMO's, ~24 m at a merge) is a point of the route
+                    tr.s = min(tr.sync_s + (odo - tr.sync_odo), tr.starts[ridx + 1] if 0 <= ridx < tr.n_edges - 1 else math.inf)
             for vid, (edge, lane_pos, speed, accel, odo, ridx), lead, prev_s in zip(active, observed, leads, prev_pos):
                 tr = state[vid]
                 s_now = tr.s

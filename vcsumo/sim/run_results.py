@@ -27,6 +27,12 @@ STOP_PASSED_M = 10.0
 skipped; one still ahead of a train that had not arrived when the run ended was not reached), m."""
 
 
+HEALTH_COUNTERS = ("stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops",
+                   "collisions", "gap_violations", "teleports", "sumo_stop_warnings", "sumo_emergency_brakings")
+"""The counters of a run summary that must all be 0 for it to be healthy (with every train arrived);
+every study row that carries a run's health carries each of them."""
+
+
 @dataclass
 class SimulationResult:
     trajectories_file: Path | None
@@ -164,12 +170,7 @@ def collect_results(scn, out: Path, state: dict, health: HealthMonitor, traj_fil
         "emergency_brakes": int(trains_df["emergency_brakes"].sum()), "teleports": len(teleports),
         "simulated_until_s": sim_end, **(extra or {}),
     }
-    summary["healthy"] = bool(
-        summary["trains_arrived"] == summary["trains"] and summary["stops_skipped"] == 0 and summary["short_dwells"] == 0 and summary["overspeed_events"] == 0
-        and summary["beyond_service_brakings"] == 0 and summary["authority_overruns"] == 0 and summary["sumo_emergency_stops"] == 0
-        and summary["collisions"] == 0 and summary["gap_violations"] == 0 and summary["teleports"] == 0 and summary["sumo_stop_warnings"] == 0
-        and summary["sumo_emergency_brakings"] == 0
-    )
+    summary["healthy"] = bool(summary["trains_arrived"] == summary["trains"] and all(summary[k] == 0 for k in HEALTH_COUNTERS))
     passages.to_csv(out / "passages.csv", index=False)
     if braking.rows:
         write_csv(pd.DataFrame(braking.rows, columns=SUMO_BRAKING_COLUMNS), out / "sumo_emergency_brakings.csv")

@@ -48,7 +48,8 @@ BATCH_COLUMNS = [
     "punctuality_3min_share", "punctuality_5min_share", "mean_arrival_delay_s", "max_arrival_delay_s",
     "primary_delay_s", "knock_on_delay_s", "capacity_consumption_pct", "capacity_consumption_cyclic_pct",
     "min_gap_m", "gap_violations", "collisions", "emergency_brakes",
-    "healthy", "min_margin_m", "stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns", "wall_time_s",
+    "healthy", "min_margin_m", "stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns",
+    "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings", "teleports", "wall_time_s",
     "line", "timetable_sha256", "delay_config_sha256", "run_key", "run_dir",
 ]
 TRAIN_COLUMNS = [
@@ -220,5 +221,7 @@ def _metrics(spec: RunSpec, planned, delays, ref: dict[str, float], res) -> tupl
         healthy=bool(s["healthy"]), min_margin_m=s["min_margin_m"] if s.get("min_margin_m") is not None else math.nan,
         stops_skipped=int(s["stops_skipped"]), short_dwells=int(s.get("short_dwells", 0)), overspeed_events=int(s["overspeed_events"]),
         beyond_service_brakings=int(s["beyond_service_brakings"]), authority_overruns=int(s["authority_overruns"]),
+        sumo_emergency_stops=int(s["sumo_emergency_stops"]), sumo_emergency_brakings=int(s["sumo_emergency_brakings"]),
+        sumo_stop_warnings=int(s["sumo_stop_warnings"]), teleports=int(s["teleports"]),
     )
     return row, train_rows

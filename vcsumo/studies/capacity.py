@@ -94,6 +94,8 @@ position by more than max(0.1 m/s, 0.5 %); SUMO is deterministic, so identical u
 agree far better than that (a looser 0.3 m/s let MB followers creep towards a train dwelling at a
 station and hid up to 12 % of the headway)."""
 SPEED_TOL_REL = 0.005
+LOST_TOL_S = 2.0
+"""A unit is hindered when its leader lost more than this against the first unit's leader, s."""
 SPEED_TOL_MIN_MPS = 1.0
 """Below 1 m/s (the last metres of a stop) speeds are not compared, only lost time."""
 SEARCH_CENTRE = 0.993
@@ -215,11 +217,12 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
             pr.vc_records = cruise_records(pd.DataFrame(driver.records), setup, {t.id: t for u in units for t in u[1:]}, driver.coupled_spacing_m)  # type: ignore[attr-defined]
         return pr
 
-    found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=2.0, resolution_s=resolution_s, bracket=SEARCH_BRACKET,
+    found = search_min_headway(run_at, ["end"], {"end": guess}, tolerance_s=LOST_TOL_S, resolution_s=resolution_s, bracket=SEARCH_BRACKET,
                                  centre=SEARCH_CENTRE)
     h, pr = found["end"]
     if math.isnan(h):
-        raise VcsumoError(f"no sustainable headway found for {case} (trains hindered at every interval tried)")
+        raise VcsumoError(f"no sustainable headway found: the second unit was hindered at every release interval tried, up to {pr.h_s:.1f} s "
+                          f"(there: {pr.hindrance('end', LOST_TOL_S)})")
     units = pr.units  # type: ignore[attr-defined]
     # coupled gap inside convoys at the release speed (±3 %), beside the separation model's gap there
     gap = spacing = math.nan

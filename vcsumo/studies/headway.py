@@ -62,6 +62,7 @@ HEADWAY_COLUMNS = [
     "line", "direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s",
     "deviation_pct", "release_interval_s", "speed_at_point_mps", "critical_km", "block_length_m", "release_km", "release_speed_mps",
     "hindrance_delay_s", "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "simulations", "healthy", "min_margin_m", "assumptions",
+    "error",
 ]
 
 
@@ -192,7 +193,10 @@ def run_headway_case(
     for lab, k, x in pts:
         h_rel, pr = found[lab]
         times = np.sort(pr.passages[pr.passages.measuring_point == lab]["time_s"].to_numpy())
-        h_sim = float(np.median(np.diff(times))) if len(times) >= 2 else math.nan
+        h_sim = float(np.median(np.diff(times))) if len(times) >= 2 and not math.isnan(h_rel) else math.nan
+        # not found: the last probe's passages are the largest interval tried, not a headway
+        error = "" if not math.isnan(h_rel) else (f"no sustainable headway found: a later train was hindered at every release interval tried, up to "
+                                                  f"{pr.h_s:.1f} s (there: {pr.hindrance(lab, tolerance_s)})")
         h_an, crit = analytic(x)
         rows.append({
             "line": line.name, "direction": direction, "regime": regime, "train": stock.name, "measuring_point_km": k,
@@ -203,7 +207,7 @@ def run_headway_case(
             "release_km": rel_km, "release_speed_mps": round(v0, 2), "hindrance_delay_s": round(pr.delays.get(lab, math.nan), 2),
             "min_gap_m": pr.summary["min_gap_m"], "gap_violations": pr.summary["gap_violations"],
             "collisions": pr.summary["collisions"], "emergency_brakes": pr.summary["emergency_brakes"], "simulations": probes_run[0],
-            "healthy": pr.summary["healthy"], "min_margin_m": pr.summary["min_margin_m"], "assumptions": assumptions.name,
+            "healthy": pr.summary["healthy"], "min_margin_m": pr.summary["min_margin_m"], "assumptions": assumptions.name, "error": error,
         })
         if progress:
             progress(len(rows), len(pts))

@@ -20,6 +20,20 @@ from typing import Callable
 import pandas as pd
 
 
+def first_passes(trace: tuple[list[float], list[float]]):
+    """A speed trace as a function of position: each step's sample where the train first reaches a
+    position beyond every earlier one.  A train inside a junction (SUMO's internal lane, a point of the
+    route) or standing keeps its position for some steps while its speed changes; interpolating
+    across those samples compared a train's speed at the junction with whichever of them came last."""
+    import numpy as np
+
+    s, v = np.asarray(trace[0], dtype=float), np.asarray(trace[1], dtype=float)
+    if len(s) < 2:
+        return s, v
+    keep = np.concatenate(([True], s[1:] > np.maximum.accumulate(s)[:-1]))
+    return s[keep], v[keep]
+
+
 @dataclass
 class Probe:
     """The outcome of one simulation at release interval ``h_s``."""
@@ -60,8 +74,8 @@ class Probe:
                 if ref is None or tid not in traces or start_delays.get(tid, 0.0) > start_tolerance_s:
                     worst = math.inf
                     break
-                rs, rv = np.asarray(ref[0]), np.asarray(ref[1])
-                fs, fv = np.asarray(traces[tid][0]), np.asarray(traces[tid][1])
+                rs, rv = first_passes(ref)
+                fs, fv = first_passes(traces[tid])
                 sel = (fs <= x) & (fs >= rs[0])
                 if not sel.any():
                     worst = math.inf
@@ -89,6 +103,21 @@ class Probe:
 
     def safe(self) -> bool:
         return self.summary.get("collisions", 0) == 0 and self.summary.get("gap_violations", 0) == 0
+
+    def hindrance(self, label: str, tolerance_s: float) -> str:
+        """Why this probe is hindered at ``label``, in words ('' when it is not)."""
+        why = []
+        if not self.safe():
+            why.append(f"{self.summary.get('gap_violations', 0)} gap violations, {self.summary.get('collisions', 0)} collisions")
+        deficit = self.speed_deficit.get(label, -math.inf)
+        if deficit == math.inf:
+            why.append("a later train started late or never reached the point")
+        elif deficit > 0:
+            why.append(f"a later train ran slower than the first at the same place, {deficit:.2f} m/s beyond the tolerance")
+        lost = self.delays.get(label, math.inf)
+        if lost > tolerance_s:
+            why.append("a later train never reached the point" if lost == math.inf else f"a later train lost {lost:.1f} s (tolerance {tolerance_s:g} s)")
+        return "; ".join(why)
 
     def ok(self, label: str, tolerance_s: float) -> bool:
         """Unhindered at ``label``: no speed deficit beyond tolerance (if measured), no lost time beyond ``tolerance_s``."""

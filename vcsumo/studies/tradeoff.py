@@ -93,10 +93,11 @@ CHECK_COLUMNS = [
     "parameter", "value", "regime", "controller", "convoy_size", "headway_analytic_s", "headway_sim_s", "deviation_pct",
     "capacity_analytic_trains_per_h", "capacity_sim_trains_per_h", "healthy", "gap_violations", "collisions", "min_margin_m",
     "below_separation_time_s", "overspeed_events", "beyond_service_brakings", "authority_overruns", "stops_skipped", "short_dwells",
-    "sumo_emergency_stops", "emergency_brakes", "simulations", "error",
+    "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings", "teleports", "emergency_brakes", "simulations", "error",
 ]
 HEALTH_COUNTERS = ("gap_violations", "collisions", "min_margin_m", "below_separation_time_s", "overspeed_events", "beyond_service_brakings",
-                   "authority_overruns", "stops_skipped", "short_dwells", "sumo_emergency_stops", "emergency_brakes", "simulations")
+                   "authority_overruns", "stops_skipped", "short_dwells", "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings",
+                   "teleports", "emergency_brakes", "simulations")
 """Counters of the simulated check, as the capacity study reports them (:mod:`vcsumo.sim.health`)."""
 
 ConvoySize = Annotated[int, Field(ge=2, le=8, description="Trains in a VC convoy (2–8)")]

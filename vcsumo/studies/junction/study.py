@@ -44,12 +44,12 @@ JUNCTION_COLUMNS = [
     "max_overspeed_mps", "vc_guard_interventions", "vc_emergency_activations", "vc_supervisor_interventions", "junction_signal_caps",
     "junction_signal_overruns", "speed_profile_caps",
     "healthy", "unhealthy_runs", "min_margin_m", "below_separation_time_s", "gap_violations_all_runs", "collisions_all_runs", "max_impact_kmh",
-    "stops_skipped", "overspeed_events", "overspeed_max_kmh", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops",
-    "sumo_emergency_brakings", "teleports", "assumptions", "simulations", "wall_time_s",
+    "stops_skipped", "short_dwells", "overspeed_events", "overspeed_max_kmh", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops",
+    "sumo_emergency_brakings", "sumo_stop_warnings", "teleports", "assumptions", "simulations", "wall_time_s",
 ]
 
-HEALTH_SUMS = ("gap_violations", "collisions", "stops_skipped", "overspeed_events", "beyond_service_brakings", "authority_overruns",
-               "sumo_emergency_stops", "sumo_emergency_brakings", "teleports")
+HEALTH_SUMS = ("gap_violations", "collisions", "stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns",
+               "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings", "teleports")
 """Run-health counters summed over every simulation of a case (``<name>_all_runs`` for the two the
 row also gives for the Δ = 0 run)."""
 
