@@ -20,7 +20,6 @@ given a network they stop with one error naming the network file.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Literal
 
