@@ -18,27 +18,33 @@ LEGEND_MAX = 60
 """At most this many legend entries in the run plot (the first trains, then "… and k more")."""
 
 
-def plot_headway(df: pd.DataFrame, path: Path) -> None:
-    """Simulated vs analytic headway per measuring point, one panel per direction."""
+def plot_headway(df: pd.DataFrame, path: Path, infrastructure: pd.DataFrame | Path | None = None, titles: dict[str, str] | None = None):
+    """Simulated vs analytic headway per measuring point, one panel per direction: the line's km on
+    the x axis with the station names above it (``infrastructure.csv``), FBS / MB in capitals, a
+    measuring point without a sustainable headway left out of its line.  ``titles``: direction ->
+    its label (the line file's ``directions``).  Returns the figure (closed)."""
     if df.empty:
-        return
+        return None
+    infra = read_table(infrastructure)
     dirs = list(dict.fromkeys(df["direction"]))
-    fig, axes = plt.subplots(1, len(dirs), figsize=(6 * len(dirs), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(dirs), figsize=(6.5 * len(dirs), 4.4), squeeze=False, layout="constrained")
     for ax, d in zip(axes[0], dirs):
         sub = df[df.direction == d]
         for (regime, train), g in sub.groupby(["regime", "train"]):
             g = g.sort_values("measuring_point_km")
-            line, = ax.plot(g.measuring_point_km, g.headway_sim_s, "o-", label=f"{regime} {train} simulated")
-            ax.plot(g.measuring_point_km, g.headway_analytic_s, "x--", color=line.get_color(), label=f"{regime} {train} analytic")
-        ax.set_title(f"{df.line.iloc[0]} — {d}")
+            line, = ax.plot(g.measuring_point_km, g.headway_sim_s, "o-", label=f"{str(regime).upper()} {train} simulated")
+            ax.plot(g.measuring_point_km, g.headway_analytic_s, "x--", color=line.get_color(), label=f"{str(regime).upper()} {train} analytic")
+        label = (titles or {}).get(d, d)
+        ax.set_title(f"{df.line.iloc[0]} — {label}" if label == d else f"{df.line.iloc[0]} — {d}: {label}", fontsize=10)
         ax.set_xlabel("measuring point [km]")
         ax.set_ylabel("minimum headway [s]")
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
+        distance_axis(ax, infra, (d,), axis="x", signals=False)
     fig.savefig(path, dpi=120)
     plt.close(fig)
+    return fig
 
 
 def plot_run(traj: pd.DataFrame | Path, path: Path, title: str = "", infrastructure: pd.DataFrame | Path | None = None):

@@ -241,7 +241,9 @@ def run_headway_study(
         rows += run_headway_case(line, net, st, d, r, sub, pts, step_s=step_s, n_trains=n_trains, tolerance_s=tolerance_s, progress=prog, assumptions=assumptions)
     df = pd.DataFrame(rows, columns=HEADWAY_COLUMNS)
     write_csv(df, out / "headway.csv")
+    from vcsumo.infrastructure import write_infrastructure
     from vcsumo.plots.charts import plot_headway
 
-    plot_headway(df, out / "headway.png")
+    infra = write_infrastructure(net.topology, out)  # the stations on the plot's distance axis
+    plot_headway(df, out / "headway.png", infra, {d: line.direction_label(d) for d in directions})
     return df
