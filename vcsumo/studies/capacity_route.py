@@ -255,7 +255,6 @@ def convoys_longer_than_platforms(stops: list[tuple[str, str, float, float, floa
         if short:
             names = ", ".join(f"{st} ({plen:g} m)" for st, plen in short)
             out.append(f"all-stops: a VC convoy of {n} ({n} × {stock.length_m:g} m + {n - 1} × {standstill_gap_m:g} m standstill gap = "
-                       f"{length:g} m) does not fit the platform of {names}; its members stop one after another there, while the analytic VC "
-                       f"headway stands it as one train: VC n={n}'s analytic figure is an upper bound the line cannot run (vcsumo study "
-                       "capacity simulates it)")
+                       f"{length:g} m) does not fit the platform of {names}; its members stop there one after another, so VC n={n}'s "
+                       "analytic headway (the convoy as one train in the platform) is shorter than the line can run")
     return out
