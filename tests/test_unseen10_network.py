@@ -110,3 +110,13 @@ def test_a_join_on_the_other_side_of_a_junction_is_kept(in_tmp, monkeypatch):
     net = NET.replace("  - {line: south.yaml}\n", "  - {line: south.yaml}\n  - {line: extra.yaml}\n") + (
         "  - {id: xj, end: {line: extra, at: start}, meets: {line: east, km: 25.0}, towards: start, diverging_speed_kmh: 60}\n")
     assert main(["build-network", "--line", str(make_net(in_tmp / "net", net))]) == 0
+
+
+def test_a_network_file_listed_as_a_line_names_the_field(in_tmp, capsys):
+    """A network listing another network file as a line: the error named the other network file
+    with no field ('this is a network of lines: this needs one line'), not where it was listed."""
+    other = make_net(in_tmp / "other")
+    path = make_net(in_tmp / "net", NET.replace("{line: north.yaml}", f"{{line: {other}}}"))
+    assert main(["build-network", "--line", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {path}: lines[2].line: ") and "is a network file" in err[0], err

@@ -370,6 +370,8 @@ def _load_member(spec: str, base: Path, net_path: Path, field: str) -> Line:
         path = path if path.is_absolute() else base / path
         if not is_file(path):
             raise InputError(net_path, field, f"line file {path} not found")
+        if network_path(path) is not None:
+            raise InputError(net_path, field, f"{path} is a network file: a network joins line files (list the lines of that network instead)")
         return load_line(path)
     try:
         return load_line(spec)
