@@ -120,3 +120,37 @@ def test_a_network_file_listed_as_a_line_names_the_field(in_tmp, capsys):
     assert main(["build-network", "--line", str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {path}: lines[2].line: ") and "is a network file" in err[0], err
+
+
+def test_double_track_line_joined_inside_a_single_track_line_does_not_deadlock(in_tmp, monkeypatch):
+    """extra (double track) joined inside north (single track) at km 2.0: U1 leaves north's single
+    track onto extra while U2, coming off extra, waits for that single track. U2 stood at the
+    junction signal, and SUMO's signal, seeing it there, kept U1 from leaving the single track through
+    the crossing link — under mb nobody moved again (0/3 arrived at 09:33, 'not healthy'); under fbs
+    U2 overran its end of authority by 10.2 m. Now extra's last edge is single track too (its two
+    tracks converge one signal before the junction) and both regimes run clean."""
+    import json
+
+    monkeypatch.setenv("VCSUMO_CACHE", str(in_tmp / "cache"))
+    net = write(in_tmp / "net" / "network.yaml", """
+name: n5
+lines:
+  - {line: north.yaml}
+  - {line: extra.yaml}
+joins:
+  - {id: xj, end: {line: extra, at: end}, meets: {line: north, km: 2.0}, towards: end, diverging_speed_kmh: 50}
+""")
+    write(in_tmp / "net" / "north.yaml", NORTH)
+    write(in_tmp / "net" / "extra.yaml", EXTRA)
+    tt = write(in_tmp / "tt.yaml", """
+name: tt
+line: n5
+services:
+  - {id: U1, train: etr1000, origin: "north:start", destination: XA, departure: "08:00"}
+  - {id: U2, train: etr1000, origin: XA, destination: "north:start", departure: "08:00"}
+  - {id: U3, train: etr1000, origin: NA, destination: "north:start", departure: "08:02"}
+""")
+    for regime in ("mb", "fbs"):
+        rc = main(["run", "--line", str(net), "--timetable", str(tt), "--regime", regime, "--end-time", "08:20", "--out", regime])
+        s = json.loads((in_tmp / regime / "summary.json").read_text())
+        assert (rc, s["trains_arrived"], s["authority_overruns"], s["collisions"], s["healthy"]) == (0, 3, 0, 0, True), (regime, s)
