@@ -199,7 +199,7 @@ def reachable(topo: Topology, start: str) -> set[str]:
     return seen
 
 
-def converge_onto_single_track(topo: Topology) -> list[str]:
+def converge_onto_single_track(topo: Topology, nodes: set[str] | None = None) -> list[str]:
     """Where a double track meets a single track at a junction *inside* it (a double-track branch
     of a single-track line, a double-track line of a network joined inside a single-track one),
     make the double track's last edges one track used both ways (a ``bidi`` pair: its two tracks
@@ -207,14 +207,15 @@ def converge_onto_single_track(topo: Topology) -> list[str]:
     the single track and the train joining it as two crossing one-way links of the junction: a train
     held off the single track (it waits for an opposing one on it) stood at the junction signal
     and SUMO's signal then kept the opposing train from leaving the single track there — both
-    waited for ever.  Returns the edges made single track."""
+    waited for ever.  ``nodes``: only these junctions (default: every one).  Returns the edges made
+    single track."""
     changed: list[str] = []
     by_from: dict[str, list[TopoEdge]] = {}
     by_to: dict[str, list[TopoEdge]] = {}
     for e in topo.edges.values():
         by_from.setdefault(e.from_node, []).append(e)
         by_to.setdefault(e.to_node, []).append(e)
-    for node in list(topo.nodes):
+    for node in list(topo.nodes) if nodes is None else sorted(nodes):
         if sum(e.bidi is not None for e in by_from.get(node, [])) < 2:
             continue  # not a node inside a single track (an end of one joined to a double track stays as it is)
         for out in [e for e in by_from.get(node, []) if e.bidi is None]:
