@@ -264,6 +264,7 @@ def _check_joins(net: Network) -> list[tuple[str, str]]:
         return n
 
     used_ends: dict[tuple[str, str], int] = {}
+    inner: dict[int, tuple[str, float, str | None]] = {}  # join index -> (met line, km, towards) of the junctions inside lines
     ids: dict[str, int] = {}
     stations = set(net.all_station_ids())
     for j, jn in enumerate(net.spec.joins):
@@ -310,6 +311,10 @@ def _check_joins(net: Network) -> list[tuple[str, str]]:
             for br in md.branches:
                 if abs(br.junction_km - km) < 0.2 and br.leaves_towards == jn.towards:
                     p.append((f"{f}.meets.km", f"junction closer than 200 m to the junction of branch '{br.id}' on the same side"))
+            for k, (other, other_km, other_towards) in inner.items():
+                if other == jn.meets.line and abs(other_km - km) < 0.2 and other_towards == jn.towards:
+                    p.append((f"{f}.meets.km", f"junction closer than 200 m to the junction of joins[{k}] ({net.spec.joins[k].id}) on the same side"))
+            inner[j] = (jn.meets.line, km, jn.towards)
         elif jn.towards is not None or jn.diverging_speed_kmh is not None:
             p.append((f"{f}.towards" if jn.towards is not None else f"{f}.diverging_speed_kmh",
                       f"{km} km is the {met_end} of line {jn.meets.line}: the lines continue into each other (no junction, no turnout)"))
@@ -364,6 +369,8 @@ def _load_member(spec: str, base: Path, net_path: Path, field: str) -> Line:
         path = path if path.is_absolute() else base / path
         if not is_file(path):
             raise InputError(net_path, field, f"line file {path} not found")
+        if network_path(path) is not None:
+            raise InputError(net_path, field, f"{path} is a network file: a network joins line files (list the lines of that network instead)")
         return load_line(path)
     try:
         return load_line(spec)

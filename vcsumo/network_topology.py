@@ -28,6 +28,7 @@ from dataclasses import replace
 
 from vcsumo.network_file import Join, Network
 from vcsumo.topology import BRANCH_ANGLE_RAD, Topology, Track, build_topology
+from vcsumo.track_graph import converge_onto_single_track
 from vcsumo.units import kmh_to_ms
 
 Z_MISMATCH_WARN_M = 0.5
@@ -179,6 +180,8 @@ def build_network_topology(net: Network, block_length_m: float | None = None) ->
         met_end = net.join_end_of_met_line(jn)
         if met_end is not None:
             topo.endpoints.pop(f"{jn.meets.line}:{met_end}", None)
+    inner_nodes = {attach["into"] for jn, _, _, _, _, attach, _ in ports if net.join_end_of_met_line(jn) is None}
+    converge_onto_single_track(topo, inner_nodes)  # a double-track line joined inside a single-track one
     used = {e.from_node for e in topo.edges.values()} | {e.to_node for e in topo.edges.values()}
     topo.nodes = {k: v for k, v in topo.nodes.items() if k in used}
     return topo

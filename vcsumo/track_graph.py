@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from vcsumo.dynamics import curve_equivalent_gradient
 from vcsumo.line import Line
@@ -197,3 +197,45 @@ def reachable(topo: Topology, start: str) -> set[str]:
                 seen.add(n)
                 q.append(n)
     return seen
+
+
+def converge_onto_single_track(topo: Topology, nodes: set[str] | None = None) -> list[str]:
+    """Where a double track meets a single track at a junction *inside* it (a double-track branch
+    of a single-track line, a double-track line of a network joined inside a single-track one),
+    make the double track's last edges one track used both ways (a ``bidi`` pair: its two tracks
+    converge one edge before the junction, at a signal).  Without it SUMO drew the train leaving
+    the single track and the train joining it as two crossing one-way links of the junction: a train
+    held off the single track (it waits for an opposing one on it) stood at the junction signal
+    and SUMO's signal then kept the opposing train from leaving the single track there — both
+    waited for ever.  ``nodes``: only these junctions (default: every one).  Returns the edges made
+    single track."""
+    changed: list[str] = []
+    by_from: dict[str, list[TopoEdge]] = {}
+    by_to: dict[str, list[TopoEdge]] = {}
+    for e in topo.edges.values():
+        by_from.setdefault(e.from_node, []).append(e)
+        by_to.setdefault(e.to_node, []).append(e)
+    for node in list(topo.nodes) if nodes is None else sorted(nodes):
+        if sum(e.bidi is not None for e in by_from.get(node, [])) < 2:
+            continue  # not a node inside a single track (an end of one joined to a double track stays as it is)
+        for out in [e for e in by_from.get(node, []) if e.bidi is None]:
+            into = next((e for e in by_to.get(node, []) if e.bidi is None and e.section == out.section and e.track != out.track
+                         and abs(e.length_m - out.length_m) < 1e-6 and abs(e.km_from - out.km_to) < 1e-9), None)
+            if into is None:
+                continue
+            x, y = out.to_node, into.from_node
+            if x == y or by_from.get(y, []) != [into] or len(by_from.get(x, [])) != 1:
+                continue  # the double track forks or ends there: left as it is
+            for p in by_to.get(y, []):
+                topo.edges[p.id] = p = replace(p, to_node=x)
+                by_to.setdefault(x, []).append(p)
+            by_to[y] = []
+            topo.edges[into.id] = replace(into, from_node=x, bidi=out.id)
+            topo.edges[out.id] = replace(out, bidi=into.id)
+            by_from[x] = by_from.get(x, []) + [topo.edges[into.id]]
+            by_from[y] = []
+            xn, yn = topo.nodes[x], topo.nodes[y]
+            topo.nodes[x] = replace(xn, signal=xn.signal or yn.signal)
+            del topo.nodes[y]
+            changed += [into.id, out.id]
+    return changed
