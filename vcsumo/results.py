@@ -294,3 +294,14 @@ class ResultsFolder:
         if self.final.exists():
             shutil.rmtree(self.final)
         os.replace(self.path, self.final)
+
+
+RESULTS_NA = ["", "nan", "NaN"]
+"""What vcsumo writes for a missing value in its CSVs (empty, or a float nan): read back as missing.
+pandas' default list also takes ``NA``, ``N/A``, ``null``, ``None``… — a station or train a user
+named ``NA`` came back as missing (unseen10)."""
+
+
+def read_results_csv(path: Path | str, **kw) -> pd.DataFrame:
+    """A vcsumo results CSV, with only vcsumo's own missing values taken as missing (:data:`RESULTS_NA`)."""
+    return pd.read_csv(path, keep_default_na=False, na_values=RESULTS_NA, **kw)

@@ -12,6 +12,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+
+from vcsumo.results import read_results_csv  # noqa: E402
 from matplotlib.ticker import FuncFormatter, MultipleLocator  # noqa: E402
 
 TABLEAU20 = list(plt.get_cmap("tab20").colors)
@@ -25,7 +27,7 @@ def read_table(table: pd.DataFrame | Path | str | None, **kw) -> pd.DataFrame | 
     if table is None or isinstance(table, pd.DataFrame):
         return table
     path = Path(table)
-    return pd.read_csv(path, **kw) if path.is_file() else None
+    return read_results_csv(path, **kw) if path.is_file() else None
 
 
 def clock(seconds: float, with_seconds: bool = False) -> str:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from vcsumo.errors import SumoError
-from vcsumo.results import write_csv
+from vcsumo.results import read_results_csv, write_csv
 from vcsumo.sim.health import SUMO_BRAKING_COLUMNS, HealthMonitor
 from vcsumo.sim.sumo_io import read_sumo_log
 
@@ -51,7 +51,7 @@ class SimulationResult:
         for: the loop streams it to disk; empty when it was not written)."""
         if self._trajectories is None:
             if self.trajectories_file is not None and self.trajectories_file.is_file():
-                self._trajectories = pd.read_csv(self.trajectories_file)
+                self._trajectories = read_results_csv(self.trajectories_file)
             else:
                 self._trajectories = pd.DataFrame(columns=TRAJECTORY_COLUMNS)
         return self._trajectories
