@@ -22,7 +22,7 @@ from xml.sax.saxutils import quoteattr
 
 from pydantic import Field, field_validator, model_validator
 
-from vcsumo.config import StrictModel, is_dir, is_file, load_model, unique_ids
+from vcsumo.config import InputProblems, StrictModel, is_dir, is_file, load_model, unique_ids
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
@@ -121,8 +121,18 @@ class Convoy(StrictModel):
 
     id: str = Field(pattern=r"^[A-Za-z0-9_\-]+$")
     services: list[str] = Field(min_length=2, description="Service ids, leader first")
-    couple_at: str | None = Field(default=None, description="Station id or junction where the convoy forms (default: as soon as possible)")
-    decouple_at: str | None = Field(default=None, description="Station id or junction where it splits (default: where the routes part)")
+    couple_at: str | None = Field(default=None, description="Not supported (an error when given): a convoy couples as soon as its members run together")
+    decouple_at: str | None = Field(default=None, description="Not supported (an error when given): a convoy splits where its members' routes part")
+
+    @field_validator("couple_at", "decouple_at")
+    @classmethod
+    def _not_supported(cls, v: str | None, info) -> str | None:
+        # Until 2026-11-28 both were accepted and ignored: a run that did not do what the file said was reported clean.
+        if v is not None:
+            where = "couples as soon as its members run on the same track" if info.field_name == "couple_at" else "splits where its members' routes part"
+            raise ValueError(f"'{v}': not supported — a convoy {where}; remove the field (to couple later, let the "
+                             "follower's service start there; to split earlier, end or route the services so)")
+        return v
 
     @field_validator("services")
     @classmethod
@@ -340,9 +350,10 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         first = next((p for p in topo.platforms_of(svc.origin) if p.edge == route[0]), None) if svc.origin not in topo.endpoints else None
         if first is not None:
             platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.length_m)))
-        for where, stop in platforms:
-            if stop.platform_length_m + 1e-6 < stock.length_m:
-                raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of '{stop.station}' (stations of {line.path})")
+        short = [InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of '{stop.station}' (stations of {line.path})")
+                 for where, stop in platforms if stop.platform_length_m + 1e-6 < stock.length_m]
+        if short:  # every platform it does not fit, one line each
+            raise short[0] if len(short) == 1 else InputProblems(short)
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
         times = [(f"{f}.departure", dep0)] + [(f"{f}.stops[{j}].{k}", x) for j, s in enumerate(planned_stops) for k, x in (("arrival", s.arrival_s),
