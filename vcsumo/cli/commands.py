@@ -88,7 +88,9 @@ def health_line(summary: dict, reasons: list[str], cut_short: bool = False) -> s
             f"{s.get('stops_scheduled', 0)} (skipped {s.get('stops_skipped', 0)}, short dwell {s.get('short_dwells', 0)}), min margin to the safe separation {metres(margin)}, "
             f"min gap {metres(gap)}, gap violations {s.get('gap_violations', 0)}, collisions {s.get('collisions', 0)}, "
             f"overspeed {s.get('overspeed_events', 0)}, braking beyond service {s.get('beyond_service_brakings', 0)}, "
-            f"authority overruns {s.get('authority_overruns', 0)}, SUMO emergency brakings {s.get('emergency_brakes', 0)}")
+            f"authority overruns {s.get('authority_overruns', 0)}, SUMO emergency brakings {s.get('sumo_emergency_brakings', 0)}, "
+            f"SUMO emergency stops {s.get('sumo_emergency_stops', 0)}, SUMO stop warnings {s.get('sumo_stop_warnings', 0)}, "
+            f"teleports {s.get('teleports', 0)}")
 
 
 def cut_short_note(summary: dict) -> str:
