@@ -29,6 +29,7 @@ from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, stall_problem, time_at, unhindered_run
 from vcsumo.single_track import single_track_meetings
+from vcsumo.timetable_convoys import check_convoy_times
 from vcsumo.timetable_gaps import idle_gaps
 from vcsumo.topology import Topology
 from vcsumo.track_graph import reachable
@@ -126,8 +127,7 @@ class Convoy(StrictModel):
 
     @field_validator("couple_at", "decouple_at")
     @classmethod
-    def _not_supported(cls, v: str | None, info) -> str | None:
-        # Until 2026-11-28 both were accepted and ignored: a run that did not do what the file said was reported clean.
+    def _not_supported(cls, v: str | None, info) -> str | None:  # (accepted and ignored until 2026-11-28: a run reported clean that did not do it)
         if v is not None:
             where = "couples as soon as its members run on the same track" if info.field_name == "couple_at" else "splits where its members' routes part"
             raise ValueError(f"'{v}': not supported — a convoy {where}; remove the field (to couple later, let the "
@@ -416,35 +416,6 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
     for msg in single_track_meetings(trains, topo, dt) + idle_gaps(trains):  # opposing trains waiting; a day of nothing
         warnings.warn(f"{path}: {msg}", stacklevel=2)
     return trains
-
-
-def _running_time_s(t: PlannedTrain, dt: float) -> float:
-    """Unhindered running time of a train from its departure to its destination (with its dwells), s."""
-    end_s = t.final_stop.s_m if t.final_stop else float(t.profile.starts_m[-1] + (t.end_pos_m or 0.0))
-    run = unhindered_run(t.stock.params(), t.profile, dt=dt, s0=t.start_s_m, stops=[Stop(s.s_m, s.dwell_s) for s in t.stops], end_s=end_s)
-    return float(run["time_s"].iloc[-1])
-
-
-def check_convoy_times(trains: list[PlannedTrain], services: list[str], path: Path, field_name: str, dt: float) -> None:
-    """The k-th trains of a convoy's services run at the same time: a member that departs only after
-    another has arrived (as scheduled, else unhindered) never couples (an InputError naming the convoy)."""
-    by_service = {s: [t for t in trains if t.service == s] for s in services}
-    running: dict[str, float] = {}
-
-    def arrival(t: PlannedTrain) -> float:
-        if t.scheduled_arrival_s is not None:
-            return t.scheduled_arrival_s
-        if t.service not in running:  # repeats of a service share its route and stops
-            running[t.service] = _running_time_s(t, dt)
-        return t.depart_s + running[t.service]
-
-    for k in range(min(len(v) for v in by_service.values())):
-        members = [by_service[s][k] for s in services]
-        last = max(members, key=lambda t: t.depart_s)
-        first = min(members, key=arrival)
-        if last.depart_s >= arrival(first):
-            raise InputError(path, f"{field_name}.services", f"train {last.id} departs at {format_clock(last.depart_s)}, when {first.id} of the same "
-                             f"convoy is already at its destination ({format_clock(arrival(first))}): they never run together, so they never couple")
 
 
 END_OF_TRACK_WINDOW_M, END_OF_TRACK_SHORT_M = 100.0, 90.0
