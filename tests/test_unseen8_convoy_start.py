@@ -3,15 +3,17 @@
 Found 2026-11-28 on a slow line of our own (80 km/h, four stations): a follower F2 departing Charlie
 (km 14) at 09:00 while its predecessor L2 left Alpha (km 0.8) at 09:00 ran 12.9 km in front of it
 to the terminal, never coupled (``coupled_steps`` 0, "never ran coupled above 5 m/s"), and the run
-was reported healthy with exit 0 — the convoy the file declared was never run.  Nothing overtakes
-on a track, so such a follower can never couple: it is now an input error naming the member.  A
-follower that joins at an intermediate station after its leader has passed it still runs, coupled.
+was reported healthy with exit 0 — the convoy the file declared was never run.  Nothing overtakes on
+a track: such a follower now enters the network behind its predecessor once that has passed
+(:mod:`vcsumo.sim.convoy_insertion`), a late departure the run warns of before it starts.  A
+follower that joins after its leader has passed departs on time, coupled.
 """
 
 from __future__ import annotations
 
 import json
 
+import pandas as pd
 import pytest
 
 from vcsumo.cli.main import main
@@ -62,12 +64,19 @@ convoys:
 
 
 @pytest.mark.sumo
-def test_a_follower_that_starts_ahead_of_its_leader_is_refused(tmp_path, monkeypatch, capsys):
-    assert _run(tmp_path, monkeypatch, "09:00") == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: ") and "tt.yaml: convoys[0].services[1]: train F departs at 09:00:00" in err[0], err
-    assert "ahead of its predecessor L" in err[0] and "never couples" in err[0]
-    assert not (tmp_path / "r").exists()
+def test_a_follower_that_starts_ahead_of_its_leader_enters_behind_it(tmp_path, monkeypatch, capsys):
+    assert _run(tmp_path, monkeypatch, "09:00") == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "convoys[0] (C): F departs at 09:00:00" in err and "ahead of its predecessor L, which gets there at" in err
+    assert "F enters the network only once L has passed (a late departure" in err
+    tr = pd.read_csv(tmp_path / "r" / "trajectories.csv")
+    s = tr.pivot_table(index="time_s", columns="train", values="s_m")
+    assert s["F"].first_valid_index() > s["L"][s["L"] > s["L"].iloc[0] + 5200.0].index[0]  # F entered once L had passed Bravo (km 6.0)
+    ev = pd.read_csv(tmp_path / "r" / "summary.csv").set_index("train")
+    assert ev.loc["F", "departure_s"] - ev.loc["F", "scheduled_departure_s"] > 60.0  # its late departure, as it happened
+    vc = json.loads((tmp_path / "r" / "vc_summary.json").read_text())["followers"][0]
+    assert vc["train"] == "F" and vc["coupled_steps"] > 0
+    assert json.loads((tmp_path / "r" / "summary.json").read_text())["healthy"]
 
 
 @pytest.mark.sumo

@@ -35,6 +35,7 @@ def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[Planne
         by_service.setdefault(t.service, []).append(t)
     out: list[list[PlannedTrain]] = []
     used: set[str] = set()
+    late_pairs: set[tuple[str, str]] = set()  # one warning per pair of services
     for c_i, cv in enumerate(tt.convoys):
         counts = {s: len(by_service.get(s, [])) for s in cv.services}
         for s_i, s in enumerate(cv.services):
@@ -52,7 +53,10 @@ def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[Planne
                 if not shared & set(m.edges):
                     raise InputError(tt_path, f"convoys[{c_i}]", f"trains of convoy '{cv.id}' share no track ({members[0].id} / {m.id})")
             for j in range(1, len(members)):
-                check_starts_behind(members[j], members[j - 1], tt_path, f"convoys[{c_i}].services[{j}]")
+                late = late_entry(members[j], members[j - 1])
+                if late and (members[j - 1].service, members[j].service) not in late_pairs:
+                    late_pairs.add((members[j - 1].service, members[j].service))
+                    warnings.warn(f"{tt_path}: convoys[{c_i}] ({cv.id}): {late}", stacklevel=2)
             out.append(members)
     if not out:
         raise InputError(tt_path, "convoys", "the vc regime needs at least one convoy in the timetable (convoys: [{id, services: [leader, follower]}])")
@@ -60,24 +64,25 @@ def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[Planne
 
 
 
-def check_starts_behind(ego: PlannedTrain, ahead: PlannedTrain, tt_path: Path, field_name: str) -> None:
-    """A follower that starts on its predecessor's route ahead of it, before the predecessor (running
-    unhindered, with its stops) has reached that place, runs in front of it: nothing overtakes on a
-    track, so it never couples behind it (an InputError naming the convoy member)."""
+def late_entry(ego: PlannedTrain, ahead: PlannedTrain) -> str:
+    """Why a follower enters the network later than its departure time, or "" when it does not: it
+    departs on its predecessor's route ahead of it, before the predecessor (running unhindered, with
+    its stops) has got there.  Nothing overtakes on a track, so it enters behind its predecessor once
+    that has passed (:mod:`~vcsumo.sim.convoy_insertion`) — until 2026-11-28 it ran in front, uncoupled."""
     if ego.edges[0] not in ahead.edges:
-        return  # it joins the predecessor's route further on (a merge): the interlocking orders them
+        return ""  # it joins the predecessor's route further on (a merge): the interlocking orders them
     s = float(ahead.profile.starts_m[ahead.edges.index(ego.edges[0])]) + ego.depart_pos_m
     if s <= ahead.start_s_m + 1.0:
-        return
+        return ""
     end_s = ahead.final_stop.s_m if ahead.final_stop else float(ahead.profile.starts_m[-1] + (ahead.end_pos_m or 0.0))
     run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, stops=[Stop(x.s_m, x.dwell_s) for x in ahead.stops],
                          end_s=end_s)
     reach = ahead.depart_s + float(time_at(run, min(s, end_s) - 1.0)[0])
     if reach <= ego.depart_s:  # (nan: it never gets there)
-        return
-    raise InputError(tt_path, field_name, f"train {ego.id} departs at {format_clock(ego.depart_s)} {s - ahead.start_s_m:.0f} m ahead of its predecessor "
-                     f"{ahead.id} on {ahead.id}'s route, which gets there at {format_clock(reach)} at the earliest: {ego.id} runs in front "
-                     f"of it and never couples (let it depart after {ahead.id} has passed, or lead the convoy)")
+        return ""
+    when = f"gets there at {format_clock(reach)} at the earliest" if reach == reach else "ends its run before"
+    return (f"{ego.id} departs at {format_clock(ego.depart_s)} {s - ahead.start_s_m:.0f} m ahead of its predecessor {ahead.id}, which {when}: "
+            f"{ego.id} enters the network only once {ahead.id} has passed (a late departure; schedule it after {ahead.id} has passed, or let it lead)")
 
 
 def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
