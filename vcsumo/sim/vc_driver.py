@@ -59,7 +59,7 @@ import numpy as np
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
 from vcsumo.control.faults import FAULT_KINDS, faults_frame
-from vcsumo.control.guard import GuardConfig, load_guard
+from vcsumo.control.guard import GuardConfig, default_guard, load_guard
 from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
@@ -168,7 +168,7 @@ class VCDriver:
         # predicted trajectories are sent only to controllers that use them (SH predictor, RLP)
         self.send_plans = controller_spec(controller).uses_plans
         self._plans: dict[str, tuple] = {}
-        self.guard = guard or GuardConfig()
+        self.guard = guard or default_guard()
         self.trains: dict[str, PlannedTrain] = {}
         self.convoy_of: dict[str, tuple[str, ...]] = {}
         self.followers: dict[str, _Follower] = {}
