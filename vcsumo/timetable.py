@@ -22,13 +22,14 @@ from xml.sax.saxutils import quoteattr
 
 from pydantic import Field, field_validator, model_validator
 
-from vcsumo.config import StrictModel, is_dir, is_file, load_model, unique_ids
+from vcsumo.config import InputProblems, StrictModel, is_dir, is_file, load_model, unique_ids
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line, project_root
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import Stop, stall_problem, time_at, unhindered_run
 from vcsumo.single_track import single_track_meetings
+from vcsumo.timetable_convoys import check_convoy_times
 from vcsumo.timetable_gaps import idle_gaps
 from vcsumo.topology import Topology
 from vcsumo.track_graph import reachable
@@ -121,8 +122,17 @@ class Convoy(StrictModel):
 
     id: str = Field(pattern=r"^[A-Za-z0-9_\-]+$")
     services: list[str] = Field(min_length=2, description="Service ids, leader first")
-    couple_at: str | None = Field(default=None, description="Station id or junction where the convoy forms (default: as soon as possible)")
-    decouple_at: str | None = Field(default=None, description="Station id or junction where it splits (default: where the routes part)")
+    couple_at: str | None = Field(default=None, description="Not supported (an error when given): a convoy couples as soon as its members run together")
+    decouple_at: str | None = Field(default=None, description="Not supported (an error when given): a convoy splits where its members' routes part")
+
+    @field_validator("couple_at", "decouple_at")
+    @classmethod
+    def _not_supported(cls, v: str | None, info) -> str | None:  # (accepted and ignored until 2026-11-28: a run reported clean that did not do it)
+        if v is not None:
+            where = "couples as soon as its members run on the same track" if info.field_name == "couple_at" else "splits where its members' routes part"
+            raise ValueError(f"'{v}': not supported — a convoy {where}; remove the field (to couple later, let the "
+                             "follower's service start there; to split earlier, end or route the services so)")
+        return v
 
     @field_validator("services")
     @classmethod
@@ -340,9 +350,10 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
         first = next((p for p in topo.platforms_of(svc.origin) if p.edge == route[0]), None) if svc.origin not in topo.endpoints else None
         if first is not None:
             platforms.insert(0, (f"{f}.origin", PlannedStop(first.id, svc.origin, start_pos, 0.0, None, None, first.length_m)))
-        for where, stop in platforms:
-            if stop.platform_length_m + 1e-6 < stock.length_m:
-                raise InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of '{stop.station}' (stations of {line.path})")
+        short = [InputError(path, where, f"train {stock.name} is {stock.length_m:g} m long, longer than the {stop.platform_length_m:g} m platform of '{stop.station}' (stations of {line.path})")
+                 for where, stop in platforms if stop.platform_length_m + 1e-6 < stock.length_m]
+        if short:  # every platform it does not fit, one line each
+            raise short[0] if len(short) == 1 else InputProblems(short)
         dep0 = parse_clock(svc.departure)
         arr_sched = parse_clock(svc.arrival) if svc.arrival is not None else None
         times = [(f"{f}.departure", dep0)] + [(f"{f}.stops[{j}].{k}", x) for j, s in enumerate(planned_stops) for k, x in (("arrival", s.arrival_s),
@@ -405,35 +416,6 @@ def plan_trains(tt: TimetableFile, path: Path, line: Line, topo: Topology, dt: f
     for msg in single_track_meetings(trains, topo, dt) + idle_gaps(trains):  # opposing trains waiting; a day of nothing
         warnings.warn(f"{path}: {msg}", stacklevel=2)
     return trains
-
-
-def _running_time_s(t: PlannedTrain, dt: float) -> float:
-    """Unhindered running time of a train from its departure to its destination (with its dwells), s."""
-    end_s = t.final_stop.s_m if t.final_stop else float(t.profile.starts_m[-1] + (t.end_pos_m or 0.0))
-    run = unhindered_run(t.stock.params(), t.profile, dt=dt, s0=t.start_s_m, stops=[Stop(s.s_m, s.dwell_s) for s in t.stops], end_s=end_s)
-    return float(run["time_s"].iloc[-1])
-
-
-def check_convoy_times(trains: list[PlannedTrain], services: list[str], path: Path, field_name: str, dt: float) -> None:
-    """The k-th trains of a convoy's services run at the same time: a member that departs only after
-    another has arrived (as scheduled, else unhindered) never couples (an InputError naming the convoy)."""
-    by_service = {s: [t for t in trains if t.service == s] for s in services}
-    running: dict[str, float] = {}
-
-    def arrival(t: PlannedTrain) -> float:
-        if t.scheduled_arrival_s is not None:
-            return t.scheduled_arrival_s
-        if t.service not in running:  # repeats of a service share its route and stops
-            running[t.service] = _running_time_s(t, dt)
-        return t.depart_s + running[t.service]
-
-    for k in range(min(len(v) for v in by_service.values())):
-        members = [by_service[s][k] for s in services]
-        last = max(members, key=lambda t: t.depart_s)
-        first = min(members, key=arrival)
-        if last.depart_s >= arrival(first):
-            raise InputError(path, f"{field_name}.services", f"train {last.id} departs at {format_clock(last.depart_s)}, when {first.id} of the same "
-                             f"convoy is already at its destination ({format_clock(arrival(first))}): they never run together, so they never couple")
 
 
 END_OF_TRACK_WINDOW_M, END_OF_TRACK_SHORT_M = 100.0, 90.0

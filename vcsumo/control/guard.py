@@ -62,6 +62,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_right
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 
 from pydantic import Field
@@ -89,6 +90,23 @@ def load_guard(spec: str | Path | None = None, field: str | None = "--guard", ba
     from vcsumo.control.params import resolve_params
 
     return load_model(GuardConfig, resolve_params(spec, "guard", field, base_dir, kind="guard"))
+
+
+def default_guard() -> GuardConfig:
+    """The guard settings every stack gets when its caller names none: ``controllers/guard.yaml``
+    (``$VCSUMO_HOME/controllers/`` when set) — the same for ``vcsumo run``, the capacity study and the
+    safety campaign in both loops (until 2026-11-28 only ``vcsumo run`` and the junction study read the
+    file; the others took the built-in defaults, so a ``sensor: true`` there changed the run, not the
+    campaign that is to check it)."""
+    from vcsumo.control.params import resolve_params
+
+    path = resolve_params(None, "guard", "guard.yaml", kind="guard")
+    return _guard_file(str(path), path.stat().st_mtime_ns)
+
+
+@lru_cache(maxsize=8)
+def _guard_file(path: str, _mtime_ns: int) -> GuardConfig:
+    return load_model(GuardConfig, path)
 
 
 @dataclass(frozen=True)
@@ -402,5 +420,5 @@ class SeparationGuard:
         return p.mass_kg * p.rotating_mass_factor * (v_target - v) / dt + float(running_resistance(p, v, tf)) + float(gradient_force(p, grad))
 
 
-__all__ = ["GuardConfig", "load_guard", "PredecessorEstimate", "predecessor_estimate", "BrakeBuildUp", "largest_fitting", "NextStep", "NextStepSeparation",
+__all__ = ["GuardConfig", "load_guard", "default_guard", "PredecessorEstimate", "predecessor_estimate", "BrakeBuildUp", "largest_fitting", "NextStep", "NextStepSeparation",
            "NextStepLine", "SeparationGuard"]

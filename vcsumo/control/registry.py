@@ -32,7 +32,7 @@ from typing import Any, Callable
 from pydantic import BaseModel
 
 from vcsumo.control.faults import FaultStage
-from vcsumo.control.guard import GuardConfig, SeparationGuard
+from vcsumo.control.guard import GuardConfig, SeparationGuard, default_guard
 from vcsumo.control.params import resolve_params
 from vcsumo.control.stack import FollowerStack, SampledController
 from vcsumo.errors import InputError
@@ -63,7 +63,7 @@ class StackContext:
     """The separation model's assumption set the guard (and the supervisor's distance) work under
     (None: the shipped default)."""
     guard: GuardConfig | None | bool = True
-    """The separation guard's settings: True (default settings), a :class:`GuardConfig`, or
+    """The separation guard's settings: True (``controllers/guard.yaml``: :func:`~vcsumo.control.guard.default_guard`), a :class:`GuardConfig`, or
     False/None — no guard (only for a paper's own architecture, e.g. the reproductions)."""
     base_dir: Path | None = None
     """Folder relative parameter paths are taken from (e.g. a study file's), else the working directory."""
@@ -240,7 +240,7 @@ def build_follower_stack(spec: str, ctx: StackContext) -> FollowerStack:
     guard = None
     if ctx.guard is not None and ctx.guard is not False:
         model = SeparationModel(ctx.assumptions or load_assumptions())
-        guard = SeparationGuard(ctx.ego, ctx.predecessor, d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else GuardConfig(), model,
+        guard = SeparationGuard(ctx.ego, ctx.predecessor, d_min, ctx.guard if isinstance(ctx.guard, GuardConfig) else default_guard(), model,
                                 ctx.position_error_m)
     stage = FaultStage(controller, ctx.ego.params(), supervisor, ctx.ego_id, ctx.recovery_s, guard=guard)
     return FollowerStack(s.name, built.controller, supervisor, guard, stage, d_min, built.coupled_gap, entry.uses_plans, files)

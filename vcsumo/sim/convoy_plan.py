@@ -13,9 +13,10 @@ from vcsumo.config import load_model
 from vcsumo.control.channel import ChannelConfig
 from vcsumo.control.params import resolve_params
 from vcsumo.errors import InputError
-from vcsumo.running_time import unhindered_run
+from vcsumo.running_time import Stop, time_at, unhindered_run
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.timetable import PlannedTrain, TimetableFile
+from vcsumo.units import format_clock
 
 
 def load_channel(spec: str | Path | None, field: str | None = "--channel", base_dir: str | Path | None = None) -> ChannelConfig:
@@ -34,6 +35,7 @@ def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[Planne
         by_service.setdefault(t.service, []).append(t)
     out: list[list[PlannedTrain]] = []
     used: set[str] = set()
+    late_pairs: set[tuple[str, str]] = set()  # one warning per pair of services
     for c_i, cv in enumerate(tt.convoys):
         counts = {s: len(by_service.get(s, [])) for s in cv.services}
         for s_i, s in enumerate(cv.services):
@@ -50,11 +52,37 @@ def convoys_from_timetable(tt: TimetableFile, tt_path: Path, trains: list[Planne
             for m in members[1:]:
                 if not shared & set(m.edges):
                     raise InputError(tt_path, f"convoys[{c_i}]", f"trains of convoy '{cv.id}' share no track ({members[0].id} / {m.id})")
+            for j in range(1, len(members)):
+                late = late_entry(members[j], members[j - 1])
+                if late and (members[j - 1].service, members[j].service) not in late_pairs:
+                    late_pairs.add((members[j - 1].service, members[j].service))
+                    warnings.warn(f"{tt_path}: convoys[{c_i}] ({cv.id}): {late}", stacklevel=2)
             out.append(members)
     if not out:
         raise InputError(tt_path, "convoys", "the vc regime needs at least one convoy in the timetable (convoys: [{id, services: [leader, follower]}])")
     return out
 
+
+
+def late_entry(ego: PlannedTrain, ahead: PlannedTrain) -> str:
+    """Why a follower enters the network later than its departure time, or "" when it does not: it
+    departs on its predecessor's route ahead of it, before the predecessor (running unhindered, with
+    its stops) has got there.  Nothing overtakes on a track, so it enters behind its predecessor once
+    that has passed (:mod:`~vcsumo.sim.convoy_insertion`) — until 2026-11-28 it ran in front, uncoupled."""
+    if ego.edges[0] not in ahead.edges:
+        return ""  # it joins the predecessor's route further on (a merge): the interlocking orders them
+    s = float(ahead.profile.starts_m[ahead.edges.index(ego.edges[0])]) + ego.depart_pos_m
+    if s <= ahead.start_s_m + 1.0:
+        return ""
+    end_s = ahead.final_stop.s_m if ahead.final_stop else float(ahead.profile.starts_m[-1] + (ahead.end_pos_m or 0.0))
+    run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, stops=[Stop(x.s_m, x.dwell_s) for x in ahead.stops],
+                         end_s=end_s)
+    reach = ahead.depart_s + float(time_at(run, min(s, end_s) - 1.0)[0])
+    if reach <= ego.depart_s:  # (nan: it never gets there)
+        return ""
+    when = f"gets there at {format_clock(reach)} at the earliest" if reach == reach else "ends its run before"
+    return (f"{ego.id} departs at {format_clock(ego.depart_s)} {s - ahead.start_s_m:.0f} m ahead of its predecessor {ahead.id}, which {when}: "
+            f"{ego.id} enters the network only once {ahead.id} has passed (a late departure; schedule it after {ahead.id} has passed, or let it lead)")
 
 
 def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
@@ -80,8 +108,6 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
                 continue
             if model is None or abs(ego.depart_pos_m - ahead.depart_pos_m) > 1.0:
                 continue
-            from vcsumo.running_time import time_at
-
             run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=ahead.start_s_m + ahead.stock.length_m + gap + 1.0,
                                  stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
             clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])

@@ -16,8 +16,8 @@ the gap from each train to the train ahead and accounts the run's health at ever
 first (:mod:`vcsumo.sim.health`: margin to the regime's safe separation from
 :mod:`vcsumo.signalling.separation` at every speed, overspeed, braking beyond service, overruns,
 collisions with impact speed), and records measuring-point passages.  The separation model's
-assumptions are a named set (``Scenario.assumptions``), recorded in the summary.
-Everything is written into the run's folder as tidy CSV plus SUMO's own outputs.
+assumptions are a named set (``Scenario.assumptions``), recorded in the summary.  Everything is
+written into the run's folder as tidy CSV plus SUMO's own outputs.
 
 If SUMO fails during the run (an error it stops on, or the simulation closed), :func:`simulate`
 raises one :class:`~vcsumo.errors.SumoError` naming the line file, the network file and the time;
@@ -162,8 +162,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     shutil.copy2(scn.network.net_file, netdir / "line.net.xml")
     shutil.copy2(scn.network.stations_file, netdir / "stations.add.xml")
     topo = scn.network.topology
-    # SUMO leaves the separation model's margin and position errors behind a standing train (a convoy
-    # follower berths that far behind its leader in a shared platform)
+    # SUMO leaves the model's margin and position errors behind a standing train (a convoy follower berths that far behind its leader)
     (out / "routes.rou.xml").write_text(routes_xml(scn.trains, topo, SeparationModel(scn.assumptions).margin_m, scn.assumptions.position_error_m))
     begin = math.floor(min(t.depart_s for t in scn.trains))
     if scn.end_time_s is not None:
@@ -202,8 +201,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     state: dict[str, _Track] = {}
     # (its rows are built below from SUMO's floats, rounded floats and None: no per-row check)
     traj = CsvStream(out / "trajectories.csv", TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, floats_checked=True) if scn.full_outputs else None
-    # every text a trajectory row can hold needs no quoting (train ids, sections, edges and SUMO's
-    # junction lanes ':<node>_<k>'): its rows are formatted in the loop, else written by the csv module
+    # every text a trajectory row can hold needs no quoting (train ids, sections, edges, SUMO's junction lanes ':<node>_<k>'): formatted here, else by csv
     plain_text = all(csv_plain(x) for x in [*plans, *topo.edges, *topo.nodes] + [sec for t in scn.trains for sec in t.profile.sections])
     pass_rows: list[tuple] = []
     collisions: list[tuple[float, str, str]] = []
@@ -246,6 +244,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
         if supervisor is not None:
             supervisor.held_at_stop = sim.at_stop
             locking.single.attach(sim.hold_insertion, sim.time)  # trains entering on single track wait until given it
+        if getattr(driver, "insertion", None) is not None:  # convoy followers enter behind their predecessor
+            driver.insertion.attach(sim.hold_insertion, topo)
         t = sim.time
         ahead = TrainsAhead(sim, {p.id: p.profile.edges for p in scn.trains}, lookahead)
         while True:

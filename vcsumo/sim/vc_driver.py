@@ -32,7 +32,8 @@ once that puts it virtually ahead by its stack's spacing and the safe separation
 
 Stations.  Convoy members leaving the same platform together depart at the leader's time, the
 follower standing behind the leader at its standstill gap (the convoy stands in the platform as
-one train, as in Felez et al. §IV-B).  The controllers know nothing of stops: a follower is handed
+one train, as in Felez et al. §IV-B); one the platform does not hold enters behind its predecessor
+(:attr:`VCDriver.insertion`, :mod:`~vcsumo.sim.convoy_insertion`).  The controllers know nothing of stops: a follower is handed
 to SUMO for its own station stop once its stop is within braking distance and either its speed is
 below 30 km/h (SUMO's on-sight moving-block rule lets it close up behind the standing leader) or
 the moving-block distance to its predecessor is already kept; it is coupled again once it has
@@ -58,7 +59,7 @@ import numpy as np
 from vcsumo.control.base import Command, Message, Observation, TrainStateMsg
 from vcsumo.control.channel import Channel, ChannelConfig
 from vcsumo.control.faults import FAULT_KINDS, faults_frame
-from vcsumo.control.guard import GuardConfig, load_guard
+from vcsumo.control.guard import GuardConfig, default_guard, load_guard
 from vcsumo.control.registry import StackContext, build_follower_stack, controller_spec, parse_controller
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
@@ -67,6 +68,7 @@ from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.results import write_json
 from vcsumo.running_time import unhindered_run
 from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
+from vcsumo.sim.convoy_insertion import ConvoyInsertion
 from vcsumo.sim.convoy_plan import (MIN_CONVOY_DWELL_S, Frame, align_convoy_stops, arrange_convoy_departures, convoy_stop_holds, convoys_from_timetable,
                                     follower_dwells, follower_stops, frame, load_channel, platform_queues,
                                      warn_short_platforms)
@@ -166,7 +168,7 @@ class VCDriver:
         # predicted trajectories are sent only to controllers that use them (SH predictor, RLP)
         self.send_plans = controller_spec(controller).uses_plans
         self._plans: dict[str, tuple] = {}
-        self.guard = guard or GuardConfig()
+        self.guard = guard or default_guard()
         self.trains: dict[str, PlannedTrain] = {}
         self.convoy_of: dict[str, tuple[str, ...]] = {}
         self.followers: dict[str, _Follower] = {}
@@ -205,6 +207,7 @@ class VCDriver:
         for fid, f in self.followers.items():  # where its predecessor waits for it to serve its dwell (the platform holds them all)
             f.dwells_s = follower_dwells(f.plan, f.pred, len(f.stops_m), standstill[fid], queues[f.pred.id])
         arrange_convoy_departures(convoys, standstill, self.model)
+        self.insertion = ConvoyInsertion(convoys, standstill)  # nor does SUMO insert one in front of its predecessor
         warn_short_platforms(convoys, standstill)
         self.aligned_stops = align_convoy_stops(convoys)
         self.releases: set[str] = set()
@@ -274,6 +277,7 @@ class VCDriver:
     def make_step(self, snap: Snapshot) -> dict[str, float]:
         """Speed commands for the coupled followers present in the snapshot."""
         whole, snap = snap, (self.junction.visible(snap) if self.junction is not None else snap)
+        self.insertion.update(whole.trains)
         self._send(snap)
         t = snap.time_s
         commands: dict[str, float] = {}
@@ -291,8 +295,7 @@ class VCDriver:
             received = self.channel.deliver(fid, t)
             fr = f.frames.get(f.pred.id)
             if not f.linked and pst is not None and fr is not None:
-                # the link is up when a convoy starts (its members formed it standing, or were released formed):
-                # the follower holds its predecessor's state from the first step both run
+                # the link is up when a convoy starts (formed standing, or released formed): the follower holds its predecessor's state
                 f.linked = True
                 if f.pred.id not in received:
                     received = {**received, f.pred.id: Message(sender=f.pred.id, sent_time_s=t, length_m=f.pred.stock.length_m,
@@ -318,8 +321,7 @@ class VCDriver:
                 v = st.speed_mps
                 s_pred = pst.s_m + fr.offset_m
                 s_pred_rear = s_pred - f.pred.stock.length_m
-                # SUMO stops the follower at its platform end, or behind a predecessor standing in the platform
-                # (margin and position errors behind its rear, as behind any train)
+                # SUMO stops the follower at its platform end, or behind a predecessor standing in the platform (margin and errors behind its rear)
                 s_stop = f.stops_m[f.next_stop]
                 in_platform = s_stop - f.platforms_m[f.next_stop] - 1.0 <= s_pred <= s_stop + 1.0
                 target = min(s_stop, s_pred_rear - self.model.margin_m) if in_platform else s_stop
@@ -372,8 +374,7 @@ class VCDriver:
                 ego=TrainStateMsg(t, st.s_m, st.speed_mps, st.accel_mps2, f.last_cmd.force_n if f.last_cmd else 0.0),
                 params=f.params, profile=f.plan.profile, received=received, predecessor=f.pred.id, convoy=f.convoy,
                 sensed_gap_m=sensed_gap, sensed_speed_mps=sensed_speed,
-                # approaching its own stop the follower keeps to service braking, so that SUMO (which
-                # serves the stop) can always take over; the stop target is an obstacle too
+                # approaching its stop the follower keeps to service braking, so that SUMO (which serves it) can take over; the target is an obstacle too
                 next_stop_m=stop_target,
             )
             t0 = time.perf_counter()
@@ -389,8 +390,7 @@ class VCDriver:
                 if not f.in_emergency:
                     f.emergency_episodes += 1
             f.in_emergency = cmd.emergency
-            # the force -> the speed after one step (eq. 1b); the follower brakes at most with its
-            # emergency braking force (SUMO's cap is off for it)
+            # the force -> the speed after one step (eq. 1b); the follower brakes at most with its emergency brake (SUMO's cap is off)
             p = f.params
             grad = f.plan.profile.mean_gradient(st.s_m, p.length_m)
             tf = f.plan.profile.tunnel_factor_at(st.s_m)
