@@ -303,5 +303,9 @@ named ``NA`` came back as missing (unseen10)."""
 
 
 def read_results_csv(path: Path | str, **kw) -> pd.DataFrame:
-    """A vcsumo results CSV, with only vcsumo's own missing values taken as missing (:data:`RESULTS_NA`)."""
-    return pd.read_csv(path, keep_default_na=False, na_values=RESULTS_NA, **kw)
+    """A vcsumo results CSV, with only vcsumo's own missing values taken as missing (:data:`RESULTS_NA`;
+    a caller that says how to read missing values, ``keep_default_na`` / ``na_values`` / ``na_filter``, is
+    followed as it says)."""
+    if not {"keep_default_na", "na_values", "na_filter"} & kw.keys():
+        kw = {**kw, "keep_default_na": False, "na_values": RESULTS_NA}
+    return pd.read_csv(path, **kw)
