@@ -31,7 +31,10 @@ def test_run_writes_a_complete_results_folder(in_tmp, capsys):
     assert set(stops.station) == {"STOP"} and len(stops) == 3
     meta = json.loads((out / "meta.json").read_text())
     assert meta["versions"]["eclipse-sumo"] == "1.28.0" and "line" in meta["inputs"]
-    assert "wrote r" in capsys.readouterr().out
+    shown = capsys.readouterr().out
+    assert "wrote r" in shown
+    head = shown.splitlines()[1]
+    assert "SUMO e-stops" in head and "emerg. brakes" not in head  # the column counts SUMO's emergency stops (summary.csv emergency_brakes)
     # the scenario opens in SUMO on its own (sumo-gui uses the same file)
     from vcsumo.sim.sumo_paths import sumo_binary
 
@@ -83,7 +86,11 @@ def test_headway_study_cli(in_tmp, capsys):
     df = pd.read_csv("h/headway.csv")
     assert {"line", "direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s"} <= set(df.columns)
     assert (abs(df.headway_sim_s - df.headway_analytic_s) / df.headway_analytic_s < 0.05).all()
-    assert "headway — felez_test" in capsys.readouterr().out
+    shown = capsys.readouterr().out
+    assert "headway — felez_test" in shown
+    head = shown.splitlines()[1:4]
+    assert any("healthy" in x for x in head), head  # every row's verdict in the table, not only below it
+    assert sum(x.rstrip().endswith("yes") for x in shown.splitlines()) == len(df)
 
 
 def test_the_readme_example_line_works(in_tmp, root, capsys):

@@ -208,7 +208,7 @@ def headway(cfg: HeadwayConfig) -> None:
             df = run_headway_study(line, net, inp.trains, regimes, rf.path, cfg.points_km, step_s=cfg.step_length_s, n_trains=cfg.trains_per_run,
                                    progress_factory=factory, assumptions=inp.assumptions)
     print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct",
-                "speed_at_point_mps"], csv_path=out / "headway.csv")
+                "speed_at_point_mps", "healthy"], csv_path=out / "headway.csv")
     out_console.print(f"wrote {out / 'headway.csv'}")
     if len(df) == 0:
         raise CampaignFailed(f"no headway was measured: no measuring point lies after the release point of a direction ({out / 'headway.csv'} is empty)")

@@ -101,7 +101,7 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
                                 "formation_start_m_before_merge": "forms_before_m", "gap_violations": "violations"})
     view["min_gap_m"] = view.min_gap_merge_m.where(view.junction_kind == "merge", view.min_gap_split_m)
     print_table(view, f"junction — {line.name} ({stock.name})", ["junction", "direction", "junction_kind", "leader", "regime", "controller", "trains_per_h",
-                 "delay_s", "forms_before_m", "min_gap_m", "min_margin_m", "violations", "collisions"], csv_path=out / "junction.csv",
+                 "delay_s", "forms_before_m", "min_gap_m", "min_margin_m", "violations", "collisions", "healthy"], csv_path=out / "junction.csv",
                 drop_first=["forms_before_m", "min_gap_m", "junction"])
     out_console.print(f"wrote {out / 'junction.csv'}")
     bad = df[not_healthy(df["healthy"])]

@@ -60,7 +60,7 @@ LABELS = {
     "direction": "dir", "stopping_pattern": "pattern", "regime": "regime", "controller": "controller", "convoy_size": "n",
     "headway_sim_s": "h sim s", "headway_analytic_s": "h theory s", "intra_convoy_gap_m": "convoy gap m",
     "capacity_trains_per_h": "capacity tr/h", "gain_vs_fbs": "gain ×FBS", "min_gap_m": "min gap m", "gap_violations": "gap viol.",
-    "collisions": "coll.", "unhealthy_runs": "unhealthy", "emergency_brakes": "emerg. brakes", "measuring_point_km": "point km", "deviation_pct": "dev. %",
+    "collisions": "coll.", "unhealthy_runs": "unhealthy", "emergency_brakes": "SUMO e-stops", "measuring_point_km": "point km", "deviation_pct": "dev. %",
     "speed_at_point_mps": "v m/s", "critical_section_km": "critical km", "release_interval_s": "release s", "simulations": "sims",
     "guard_interventions": "guard", "healthy": "healthy", "min_margin_m": "margin m", "convoy_formed": "formed",
     # run
