@@ -93,25 +93,36 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
     same departure edge.  If the convoy does not stand in that edge, the follower departs from its
     own position as soon as the train ahead has cleared it by the standstill gap (its unhindered
     start, with ``model``'s guaranteed braking; SUMO would otherwise insert it a few metres behind).
+    A follower that leaves later than its timetable says this way (timetabled before the train ahead
+    of it) is warned of, naming both times.
     """
     for members in convoys:
         for k in range(1, len(members)):
             ego, ahead = members[k], members[k - 1]
             if ego.edges[0] != ahead.edges[0] or abs(ego.depart_s - ahead.depart_s) > window_s or ahead.depart_speed_mps > 0:
                 continue
-            gap = standstill_gap_m.get(ego.id, 10.0)
-            pos = ahead.depart_pos_m - ahead.stock.length_m - gap
-            if pos >= ego.stock.length_m:
-                ego.depart_s = ahead.depart_s
-                ego.depart_pos_m = pos
-                ego.start_s_m = pos
-                continue
-            if model is None or abs(ego.depart_pos_m - ahead.depart_pos_m) > 1.0:
-                continue
-            run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=ahead.start_s_m + ahead.stock.length_m + gap + 1.0,
-                                 stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
-            clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
-            ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
+            timetabled = ego.depart_s
+            _depart_with(ego, ahead, standstill_gap_m.get(ego.id, 10.0), model)
+            if ego.depart_s > timetabled + 0.5:
+                warnings.warn(f"convoy follower {ego.id} is timetabled at {format_clock(timetabled)}, before {ahead.id} ahead of it in the convoy "
+                              f"({format_clock(ahead.depart_s)}): it leaves behind it at {format_clock(ego.depart_s)} "
+                              f"({ego.depart_s - timetabled:.0f} s after its timetable; summary.csv's scheduled departure is that time)", stacklevel=2)
+
+
+def _depart_with(ego: PlannedTrain, ahead: PlannedTrain, gap: float, model: SeparationModel | None) -> None:
+    """Place ``ego`` to depart behind ``ahead`` (:func:`arrange_convoy_departures`)."""
+    pos = ahead.depart_pos_m - ahead.stock.length_m - gap
+    if pos >= ego.stock.length_m:
+        ego.depart_s = ahead.depart_s
+        ego.depart_pos_m = pos
+        ego.start_s_m = pos
+        return
+    if model is None or abs(ego.depart_pos_m - ahead.depart_pos_m) > 1.0:
+        return
+    run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=ahead.start_s_m + ahead.stock.length_m + gap + 1.0,
+                         stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
+    clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
+    ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
 
 
 def stop_window_m(ego: PlannedTrain, stop) -> float:
