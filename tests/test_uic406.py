@@ -1,6 +1,7 @@
 """UIC 406 capacity consumption: blocking-time stairs, compression, sections (no SUMO)."""
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -11,7 +12,6 @@ from vcsumo.errors import VcsumoError
 from vcsumo.running_time import Stop, time_at, unhindered_run
 from vcsumo.timetable import load_timetable, plan_trains
 from vcsumo.signalling.uic406 import (
-    GapRule,
     capacity_consumption,
     compress,
     convoy_pairs,
@@ -21,6 +21,16 @@ from vcsumo.signalling.uic406 import (
 from vcsumo.signalling.scheduled_run import reference_arrivals, timetable_run
 
 from .conftest import write
+
+
+@dataclass(frozen=True)
+class GapRule:
+    """A constant approach distance (a hand-computable rule for :func:`stairs`), m."""
+
+    gap_m: float
+
+    def distance(self, v, s=None):
+        return np.zeros_like(np.asarray(v, dtype=float)) + self.gap_m
 
 
 def constant_run(v: float, length_m: float, t0: float = 0.0, dt: float = 0.5) -> pd.DataFrame:

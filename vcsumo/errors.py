@@ -18,6 +18,10 @@ class InfeasibleBraking(VcsumoError, ValueError):
     """A train's guaranteed brake cannot hold it on a descent under the assumption set: no run of it
     can be safe.  (Also a ValueError: callers that add the train and the set catch it as such.)"""
 
+    def for_train(self, train_id: str, assumptions: str) -> VcsumoError:
+        """The same, said of one train of a run under the named assumption set."""
+        return VcsumoError(f"infeasible: train {train_id}: {self} of its route under the assumption set '{assumptions}'")
+
 
 class InputError(VcsumoError):
     """A malformed or inconsistent input file (line, timetable, rolling stock, study, controller)."""

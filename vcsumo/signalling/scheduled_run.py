@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from vcsumo.errors import VcsumoError
+from vcsumo.errors import InfeasibleBraking
 from vcsumo.running_time import Stop, unhindered_run
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.timetable import PlannedTrain
@@ -58,8 +58,8 @@ def timetable_run(train: PlannedTrain, dt: float = 0.5, model: SeparationModel |
     p = train.stock.params()
     try:
         curve = RouteBraking(model, train.stock, train.profile).curve(1.5 * dt) if model is not None else None
-    except ValueError as exc:  # its guaranteed brake does not hold it on a descent of its route (as the run says it)
-        raise VcsumoError(f"infeasible: train {train.id}: {exc} of its route under the assumption set '{model.assumptions.name}'") from None
+    except InfeasibleBraking as exc:  # its guaranteed brake does not hold it on a descent of its route (as the run says it)
+        raise exc.for_train(train.id, model.assumptions.name) from None
     run = unhindered_run(p, train.profile, dt=dt, s0=train.start_s_m, v0=train.depart_speed_mps,
                          stops=[Stop(s.s_m, s.dwell_s) for s in train.stops], end_s=route_end_s(train), stop_at_end=train.stop_at_end, curve=curve)
     t = run["time_s"].to_numpy()

@@ -155,16 +155,6 @@ class CoupledGapRule:
         return float(out[0]) if np.ndim(v) == 0 else out
 
 
-@dataclass(frozen=True)
-class GapRule:
-    """A constant approach distance: relative braking distance, the follower's gap only."""
-
-    gap_m: float
-
-    def distance(self, v, s=None):
-        return np.zeros_like(np.asarray(v, dtype=float)) + self.gap_m
-
-
 # ---------------------------------------------------------------------------------------------
 # Blocking-time stairs
 
@@ -326,12 +316,13 @@ def capacity_consumption(
     patterns: dict[tuple, pd.DataFrame] = cache.setdefault(("patterns", step_s, set_key), {})
     stair_cache: dict[tuple, pd.DataFrame] = cache.setdefault(("stairs", step_s, virtual_block_m, setup_s, release_s, set_key), {})
     # the regime's rule (vcsumo.signalling.regimes): where a block is approached and when it is released
+    setup = setup_s + a.fixed_time_s
     if regime == "fbs":
         offsets = {"approach_offset_m": a.position_error_m, "clear_offset_m": a.overlap_m + a.position_error_m}
-        setup, release = setup_s + a.fixed_time_s, release_s
+        release = release_s
     else:  # the confirmed rear of the train ahead is up to one report period old
         offsets = {}
-        setup, release = setup_s + a.fixed_time_s, release_s + a.position_report_period_s
+        release = release_s + a.position_report_period_s
     runs: dict[str, pd.DataFrame] = {}
     for t in trains:
         key = pattern_key(t)

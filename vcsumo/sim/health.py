@@ -40,7 +40,7 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass, field
 
-from vcsumo.errors import VcsumoError
+from vcsumo.errors import InfeasibleBraking
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range, strongest_decel
 from vcsumo.sim.sumo_io import SumoEmergencyBraking, SumoLogCounts
 from vcsumo.timetable import PlannedTrain
@@ -175,8 +175,8 @@ class HealthMonitor:
                 key = (id(t.stock), id(t.profile), kind)
                 try:
                     into[t.id] = shared.get(key) or shared.setdefault(key, RouteBraking(model, t.stock, t.profile, kind))
-                except ValueError as exc:  # its brake does not hold it on a descent of its route: no run of it can be safe
-                    raise VcsumoError(f"infeasible: train {t.id}: {exc} of its route under the assumption set '{model.assumptions.name}'") from None
+                except InfeasibleBraking as exc:  # its brake does not hold it on a descent of its route: no run of it can be safe
+                    raise exc.for_train(t.id, model.assumptions.name) from None
         self.relative: dict[tuple[str, str], RelativeBraking] = {}
         self.tol_mps = model.assumptions.speed_tolerance_kmh / 3.6 + SPEED_ROUNDING_MPS
         self.collision_rows: list[tuple] = []

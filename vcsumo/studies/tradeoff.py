@@ -49,7 +49,7 @@ import pandas as pd
 from pydantic import Field, TypeAdapter, ValidationError, field_validator
 
 from vcsumo.config import StrictModel
-from vcsumo.errors import InputError, VcsumoError
+from vcsumo.errors import InfeasibleBraking, InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.signalling.assumptions import AssumptionSet
@@ -206,9 +206,7 @@ def capacities(tl: TradeoffLine, aset: AssumptionSet, units: list[tuple[str, int
                          "coupled_gap_m": round(th.coupled_gap_m, 1) if th.coupled_gap_m is not None else math.nan,
                          "release_speed_kmh": round(3.6 * setup.v0, 1), "error": ""})
         return rows
-    except ValueError as exc:  # no guaranteed braking on a descent under this set
-        if "no guaranteed" not in str(exc):
-            raise
+    except InfeasibleBraking as exc:  # no guaranteed braking on a descent under this set
         return [{"regime": r, "convoy_size": n, "headway_s": math.nan, "capacity_trains_per_h": math.nan, "critical_km": math.nan,
                  "coupled_gap_m": math.nan, "release_speed_kmh": math.nan, "error": str(exc)} for r, n in units]
 
