@@ -149,6 +149,38 @@ def test_capacity_time_distance_has_legend_signals_and_keeps_a_failed_vc_panel(r
     assert any("SUMO failed during the simulation" in x for x in texts(fig))
 
 
+def test_moving_block_band_is_the_separation_models_reservation(results):
+    """The MB band of the time–distance figure at a point lasts from the time the leader's reservation
+    (its supervised braking distance + margin and position errors) reaches it until its rear has
+    passed: its longest is the analytic MB headway of capacity.csv less the position-report period
+    and the fixed time the headway adds (until 2026-11-28 the band took the nominal service brake
+    and 50 m: 17.9 s against 27.3 s on the Felez track, a figure that did not show the table's headway)."""
+    from vcsumo.signalling.assumptions import load_assumptions
+
+    sets = load_assumptions()
+    td = pd.read_csv(results / "cap" / "time_distance.csv", keep_default_na=False)
+    cap = pd.read_csv(results / "cap" / "capacity.csv")
+    band = td[(td.regime == "mb") & (td.kind == "band") & (td.unit == 0)]
+    longest = float((pd.to_numeric(band.t_to_s) - pd.to_numeric(band.t_from_s)).max())
+    analytic = float(cap.loc[cap.regime == "mb", "headway_analytic_s"].iloc[0])
+    assert longest == pytest.approx(analytic - sets.position_report_period_s - sets.fixed_time_s, abs=0.2)
+
+
+def test_reservation_reaches_a_point_braking_distance_and_margin_ahead_of_the_front():
+    """Tier 1, constant speed: the reservation reaches x when the front is D(v) + margin before it."""
+    from vcsumo.signalling.blocking_time import BrakingRule, mb_headway_profile
+    from vcsumo.studies.time_distance import reserved_from
+
+    v, rule, margin = 50.0, BrakingRule(0.5, 2.0), 80.0
+    t = np.arange(0.0, 200.0, 0.5)
+    run = pd.DataFrame({"time_s": t, "s_m": v * t, "speed_mps": np.full_like(t, v)})
+    reserved = mb_headway_profile(run, 200.0, rule, margin_m=margin)[["s_m", "reserved_to_m"]]
+    ahead = v * v / 1.0 + 2.0 * v + margin  # 2,680 m
+    x = run.s_m.to_numpy()
+    expected = np.where(x > ahead, (x - ahead) / v, 0.0)
+    assert np.allclose(reserved_from(reserved, run), expected, atol=1e-6)
+
+
 def test_time_distance_table_of_a_failed_case():
     from vcsumo.studies.capacity import Case
     from vcsumo.studies.time_distance import TIME_DISTANCE_COLUMNS, time_distance_table

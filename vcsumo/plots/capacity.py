@@ -199,7 +199,7 @@ def plot_time_distance_stairs(table: pd.DataFrame | Path, path: Path, line_name:
         handles.append(Line2D([], [], ls="none", marker="^", ms=4, color="0.3", label="signals (▲ up, ▼ down)"))
     fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8, frameon=False, title_fontsize=8,
                title="blocking time — FBS: each block, from the approach point's time until the tail clears the next signal; "
-                     "MB / VC: braking distance + 50 m ahead of the unit, until its last train has passed")
+                     "MB / VC: from the time the unit's reservation (supervised braking distance + margin) reaches a point until its last train has passed")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return fig

@@ -114,7 +114,7 @@ def fbs_blocking_times(run: pd.DataFrame, signals_s: list[float], route_end_s: f
 
 def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m: float | None = None, step_m: float = 50.0,
                        rear_lag_at=None) -> pd.DataFrame:
-    """Moving-block headway H(y) along the run; columns ``s_m, speed_mps, headway_s``.
+    """Moving-block headway H(y) along the run; columns ``s_m, speed_mps, headway_s, reserved_to_m``.
 
     The follower at y keeps D(v(y)) + margin to the rear of the train ahead: H(y) = t(z) − t(y)
     with z = y + D + margin + L.  ``margin_m`` None: SUMO's own margin (50 m from 30 km/h, its
@@ -123,7 +123,8 @@ def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m:
     set with a 30 m margin and 10 m position errors got a 3.4 s shorter MB headway at a departure).
     For a VC convoy ahead (``rear_lag_at``: the time between its leader and its last train passing a
     position) the rear passes z ``rear_lag_at(z)`` after the leader: H(y) = t(z) + τ_c(z) − t(y),
-    with ``length_m`` then the last train's length.
+    with ``length_m`` then the last train's length.  ``reserved_to_m``: how far the track ahead of a
+    front at y is reserved, y + D + margin (the band of the time–distance figure).
     """
     s = run["s_m"].to_numpy()
     v = run["speed_mps"].to_numpy()
@@ -131,14 +132,15 @@ def mb_headway_profile(run: pd.DataFrame, length_m, rule: BrakingRule, margin_m:
     vy = np.interp(grid, s, v)
     L = length_m(vy) if callable(length_m) else length_m
     margin = sumo_mb_margin(vy) if margin_m is None else margin_m
-    ahead = grid + rule.distance(vy, grid) + margin + L
+    reserved = grid + rule.distance(vy, grid) + margin
+    ahead = reserved + L
     t_y = time_at(run, grid)
     t_ahead = time_at(run, np.minimum(ahead, s[-1]))
     over = ahead > s[-1]
     t_ahead[over] = float(run["time_s"].iloc[-1]) + (ahead[over] - s[-1]) / max(float(v[-1]), 0.1)
     if rear_lag_at is not None:
         t_ahead = t_ahead + rear_lag_at(np.minimum(ahead, s[-1]))
-    return pd.DataFrame({"s_m": grid, "speed_mps": vy, "headway_s": t_ahead - t_y})
+    return pd.DataFrame({"s_m": grid, "speed_mps": vy, "headway_s": t_ahead - t_y, "reserved_to_m": reserved})
 
 
 def fbs_headway_at(blocks: pd.DataFrame, x_m: float) -> tuple[float, float]:

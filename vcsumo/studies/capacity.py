@@ -151,6 +151,8 @@ class CaseResult:
     run: pd.DataFrame
     blocks: pd.DataFrame | None
     h: float
+    reservation: pd.DataFrame | None = None
+    """MB / VC: the track reserved ahead of the unit's leader (:attr:`vcsumo.signalling.regimes.base.AnalyticHeadway.reservation`)."""
 
 
 def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSetup, case: Case, out: Path, step_s: float, vc_step_s: float,
@@ -269,7 +271,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         "io_time_s": round(timing["io_time_s"], 1), "error": "",
     }
     _prune(out / "probes", f"h{h:08.3f}")
-    return CaseResult(row, pr, units, run, blocks, h)
+    return CaseResult(row, pr, units, run, blocks, h, theory.reservation)
 
 
 def _prune(folder: Path, keep: str) -> None:

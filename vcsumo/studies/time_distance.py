@@ -5,8 +5,10 @@ One panel per regime: the first direction and stopping pattern, the largest conv
 
 * ``kind = block`` — FBS blocking time of one block for one unit: from the approach point's time to
   the tail clearing the next signal (``t_from_s``–``t_to_s``, ``km_from``–``km_to``);
-* ``kind = band`` — MB / VC: the band reserved ahead of a unit (braking distance + 50 m) at one km
-  of the leader's run: ``t_from_s``–``t_to_s`` at ``km_from`` (= ``km_to``);
+* ``kind = band`` — MB / VC: the track reserved for a unit at one km of its leader's run, from the time
+  the reservation ahead of the leader (its supervised braking distance + margin and position errors,
+  the separation model's rule the headway is computed with) first reaches it until the unit's rear
+  has passed: ``t_from_s``–``t_to_s`` at ``km_from`` (= ``km_to``);
 * ``kind = schedule`` — the leader's unhindered run, shifted by the release interval (``t_from_s``, ``km_from``);
 * ``kind = train`` — a simulated train of the run at the minimum headway (``train``, ``t_from_s``, ``km_from``);
 * ``kind = failed`` — the case of the panel failed: ``note`` holds its error, the panel has no other rows.
@@ -22,11 +24,27 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from vcsumo.running_time import time_at
+
 TIME_DISTANCE_COLUMNS = ["panel", "regime", "controller", "convoy_size", "direction", "stopping_pattern", "headway_s", "unit", "train", "kind",
                          "t_from_s", "t_to_s", "km_from", "km_to", "note"]
 TIME_DISTANCE_FILE = "time_distance.csv"
 TRACE_EVERY = 10
 """Every 10th step of a simulated train's trace is kept (a point every 1–5 s)."""
+
+
+def reserved_from(reservation: pd.DataFrame, run: pd.DataFrame) -> np.ndarray:
+    """Time at which the track reserved ahead of the leader (``reservation``: front ``s_m`` →
+    ``reserved_to_m``) first reaches each position of the leader's run (``run``: ``time_s, s_m``), s;
+    positions reserved already at the run's start get its first time."""
+    s = run["s_m"].to_numpy(dtype=float)
+    front = reservation["s_m"].to_numpy(dtype=float)
+    reach = np.maximum.accumulate(reservation["reserved_to_m"].to_numpy(dtype=float))
+    k = np.clip(np.searchsorted(reach, s, side="left"), 1, len(reach) - 1)  # the first front whose reservation reaches x
+    lo, hi = reach[k - 1], reach[k]
+    frac = np.where(hi > lo, (s - lo) / np.where(hi > lo, hi - lo, 1.0), 1.0)
+    y = np.where(s <= reach[0], front[0], front[k - 1] + np.clip(frac, 0.0, 1.0) * (front[k] - front[k - 1]))
+    return time_at(run, np.maximum(y, s[0]))
 
 
 def _panel_rows(panel: int, regime: str, res, setups: dict) -> list[dict]:
@@ -35,7 +53,6 @@ def _panel_rows(panel: int, regime: str, res, setups: dict) -> list[dict]:
     run = res.run
     t = run.time_s.to_numpy()
     s = run.s_m.to_numpy()
-    v = run.speed_mps.to_numpy()
     km = np.array([full.km_at(x)[1] for x in s])
     stock = res.units[0][0].stock
     n = len(res.units[0])
@@ -52,9 +69,8 @@ def _panel_rows(panel: int, regime: str, res, setups: dict) -> list[dict]:
                 rows.append(dict(base, unit=j, kind="block", t_from_s=b.t_approach_s + shift, t_to_s=b.t_clear_s + shift,
                                  km_from=full.km_at(b.block_start_m)[1], km_to=full.km_at(b.block_end_m)[1]))
         else:
-            d = v * v / (2 * stock.service_brake_decel_mps2) + 50.0
-            t_app = np.interp(s - d, s, t, left=t[0])
-            t_clr = np.interp(s + L_u, s, t, right=np.nan)
+            t_app = reserved_from(res.reservation, run)
+            t_clr = time_at(run, s + L_u)
             rows += [dict(base, unit=j, kind="band", t_from_s=a + shift, t_to_s=c + shift, km_from=k, km_to=k)
                      for a, c, k in zip(t_app, t_clr, km) if c == c]
         rows += [dict(base, unit=j, kind="schedule", t_from_s=tt + shift, t_to_s=math.nan, km_from=k, km_to=math.nan)

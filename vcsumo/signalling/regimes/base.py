@@ -94,6 +94,10 @@ class AnalyticHeadway:
     follower is at the release (with ``HeadwayInputs.coupled_gap_at``), else on level track."""
     coupled_gap_level_m: float | None = None
     """VC: the same spacing on level track at the release speed, m (a paper check)."""
+    reservation: pd.DataFrame | None = None
+    """MB / VC: the track reserved ahead of the unit's leader along its run, ``s_m`` (front) →
+    ``reserved_to_m`` (front + supervised braking distance + margin and position errors), the rule
+    the headway is computed with (for the time–distance bands)."""
 
 
 class Regime:

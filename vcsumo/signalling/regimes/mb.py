@@ -29,4 +29,4 @@ class MovingBlock(Regime):
             sel = prof.iloc[:1]
         i = sel.headway_s.idxmax()
         extra = a.position_report_period_s + a.fixed_time_s
-        return AnalyticHeadway(float(sel.loc[i, "headway_s"]) + extra, float(sel.loc[i, "s_m"]))
+        return AnalyticHeadway(float(sel.loc[i, "headway_s"]) + extra, float(sel.loc[i, "s_m"]), reservation=prof[["s_m", "reserved_to_m"]])
