@@ -152,18 +152,21 @@ def test_capacity_time_distance_has_legend_signals_and_keeps_a_failed_vc_panel(r
 def test_moving_block_band_is_the_separation_models_reservation(results):
     """The MB band of the time–distance figure at a point lasts from the time the leader's reservation
     (its supervised braking distance + margin and position errors) reaches it until its rear has
-    passed: its longest is the analytic MB headway of capacity.csv less the position-report period
-    and the fixed time the headway adds (until 2026-11-28 the band took the nominal service brake
-    and 50 m: 17.9 s against 27.3 s on the Felez track, a figure that did not show the table's headway)."""
+    passed (a VC convoy's last train at the coupled spacing the analytic headway takes): its longest
+    is the analytic MB / VC headway of capacity.csv less the position-report period and the fixed
+    time the headway adds (until 2026-11-28 the band took the nominal service brake and 50 m, and a
+    convoy's median gap in the run: MB 17.9 s against 27.3 s on the Felez track, VC n=2 31.8 s against
+    41.3 s — a figure that did not show the table's headway)."""
     from vcsumo.signalling.assumptions import load_assumptions
 
     sets = load_assumptions()
     td = pd.read_csv(results / "cap" / "time_distance.csv", keep_default_na=False)
     cap = pd.read_csv(results / "cap" / "capacity.csv")
-    band = td[(td.regime == "mb") & (td.kind == "band") & (td.unit == 0)]
-    longest = float((pd.to_numeric(band.t_to_s) - pd.to_numeric(band.t_from_s)).max())
-    analytic = float(cap.loc[cap.regime == "mb", "headway_analytic_s"].iloc[0])
-    assert longest == pytest.approx(analytic - sets.position_report_period_s - sets.fixed_time_s, abs=0.2)
+    for regime, size in (("mb", 1), ("vc", 2)):
+        band = td[(td.regime == regime) & (td.kind == "band") & (td.unit == 0)]
+        longest = float((pd.to_numeric(band.t_to_s) - pd.to_numeric(band.t_from_s)).max())
+        analytic = float(cap.loc[(cap.regime == regime) & (cap.convoy_size == size), "headway_analytic_s"].iloc[0])
+        assert longest == pytest.approx(analytic - sets.position_report_period_s - sets.fixed_time_s, abs=0.2), regime
 
 
 def test_reservation_reaches_a_point_braking_distance_and_margin_ahead_of_the_front():

@@ -63,6 +63,7 @@ from vcsumo.engine.campaign import Outcome, Runner, Task, run_campaign
 from vcsumo.engine.store import ResultStore, Table, atomic_csv
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.separation import SeparationModel
+from vcsumo.signalling.regimes.base import AnalyticHeadway
 from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.sim.network import BuiltNetwork
@@ -151,8 +152,8 @@ class CaseResult:
     run: pd.DataFrame
     blocks: pd.DataFrame | None
     h: float
-    reservation: pd.DataFrame | None = None
-    """MB / VC: the track reserved ahead of the unit's leader (:attr:`vcsumo.signalling.regimes.base.AnalyticHeadway.reservation`)."""
+    theory: AnalyticHeadway | None = None
+    """The regime's analytic headway of the case (its blocking times, reservation, convoy rear lag)."""
 
 
 def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSetup, case: Case, out: Path, step_s: float, vc_step_s: float,
@@ -271,7 +272,7 @@ def run_case(line: Line, net: BuiltNetwork, stock: RollingStock, setup: RouteSet
         "io_time_s": round(timing["io_time_s"], 1), "error": "",
     }
     _prune(out / "probes", f"h{h:08.3f}")
-    return CaseResult(row, pr, units, run, blocks, h, theory.reservation)
+    return CaseResult(row, pr, units, run, blocks, h, theory)
 
 
 def _prune(folder: Path, keep: str) -> None:

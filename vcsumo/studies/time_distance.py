@@ -7,8 +7,9 @@ One panel per regime: the first direction and stopping pattern, the largest conv
   the tail clearing the next signal (``t_from_s``–``t_to_s``, ``km_from``–``km_to``);
 * ``kind = band`` — MB / VC: the track reserved for a unit at one km of its leader's run, from the time
   the reservation ahead of the leader (its supervised braking distance + margin and position errors,
-  the separation model's rule the headway is computed with) first reaches it until the unit's rear
-  has passed: ``t_from_s``–``t_to_s`` at ``km_from`` (= ``km_to``);
+  the separation model's rule the headway is computed with) first reaches it until the rear of the
+  unit's last train has passed (a convoy's followers at the coupled spacing the analytic headway
+  takes): ``t_from_s``–``t_to_s`` at ``km_from`` (= ``km_to``);
 * ``kind = schedule`` — the leader's unhindered run, shifted by the release interval (``t_from_s``, ``km_from``);
 * ``kind = train`` — a simulated train of the run at the minimum headway (``train``, ``t_from_s``, ``km_from``);
 * ``kind = failed`` — the case of the panel failed: ``note`` holds its error, the panel has no other rows.
@@ -56,9 +57,6 @@ def _panel_rows(panel: int, regime: str, res, setups: dict) -> list[dict]:
     km = np.array([full.km_at(x)[1] for x in s])
     stock = res.units[0][0].stock
     n = len(res.units[0])
-    gap = res.row.get("intra_convoy_gap_m")
-    gap = gap if gap is not None and not (isinstance(gap, float) and math.isnan(gap)) else 0.0
-    L_u = n * stock.length_m + (n - 1) * gap
     base = dict(panel=panel, regime=regime, controller=res.row.get("controller") or "", convoy_size=n, direction=setup.direction,
                 stopping_pattern=res.row.get("stopping_pattern", ""), headway_s=round(float(res.h), 3), train="", note="")
     rows: list[dict] = []
@@ -69,8 +67,10 @@ def _panel_rows(panel: int, regime: str, res, setups: dict) -> list[dict]:
                 rows.append(dict(base, unit=j, kind="block", t_from_s=b.t_approach_s + shift, t_to_s=b.t_clear_s + shift,
                                  km_from=full.km_at(b.block_start_m)[1], km_to=full.km_at(b.block_end_m)[1]))
         else:
-            t_app = reserved_from(res.reservation, run)
-            t_clr = time_at(run, s + L_u)
+            t_app = reserved_from(res.theory.reservation, run)
+            t_clr = time_at(run, s + stock.length_m)  # the unit's last train's rear passes (its front at s + L)
+            if res.theory.rear_lag is not None:
+                t_clr = t_clr + res.theory.rear_lag(s + stock.length_m)
             rows += [dict(base, unit=j, kind="band", t_from_s=a + shift, t_to_s=c + shift, km_from=k, km_to=k)
                      for a, c, k in zip(t_app, t_clr, km) if c == c]
         rows += [dict(base, unit=j, kind="schedule", t_from_s=tt + shift, t_to_s=math.nan, km_from=k, km_to=math.nan)

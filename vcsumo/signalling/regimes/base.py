@@ -98,6 +98,9 @@ class AnalyticHeadway:
     """MB / VC: the track reserved ahead of the unit's leader along its run, ``s_m`` (front) →
     ``reserved_to_m`` (front + supervised braking distance + margin and position errors), the rule
     the headway is computed with (for the time–distance bands)."""
+    rear_lag: Callable[[np.ndarray], np.ndarray] | None = None
+    """VC convoys: time between the convoy's leader and its last train passing a route position, s
+    (:func:`vcsumo.signalling.regimes.vc.convoy_rear_lag`); None: a single train."""
 
 
 class Regime:

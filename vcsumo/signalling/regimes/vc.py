@@ -115,4 +115,4 @@ class VirtualCoupling(Regime):
             level = float(inp.coupled_gap(v0)) if inp.coupled_gap is not None else float(inp.model.vc_gap(inp.stock, inp.stock, v0))
             gap = route_gaps(inp.coupled_gap_at, v0, float(inp.run["s_m"].iloc[0]), inp.stock.length_m, 2)[0] if inp.coupled_gap_at is not None else level
         return AnalyticHeadway(float(sel.loc[i, "headway_s"]) + a.position_report_period_s + a.fixed_time_s, float(sel.loc[i, "s_m"]), coupled_gap_m=gap,
-                               coupled_gap_level_m=level, reservation=prof[["s_m", "reserved_to_m"]])
+                               coupled_gap_level_m=level, reservation=prof[["s_m", "reserved_to_m"]], rear_lag=lag)
