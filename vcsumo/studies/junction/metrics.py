@@ -10,6 +10,8 @@ import math
 import numpy as np
 import pandas as pd
 
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.studies.junction.model import ROLES, Case, RunResult, Setup, link_of
 
 HINDRANCE_ABS_MPS = 0.3
@@ -52,9 +54,12 @@ def _window_count(viol: pd.DataFrame, run: RunResult, setup: Setup, s_j: dict[st
     return n
 
 
-def signal_exposure(setup: Setup, run: RunResult, follower: str, node: str | None, s_node: dict[str, float], links: dict[tuple[str, str], int]) -> tuple[float, float]:
+def signal_exposure(setup: Setup, run: RunResult, follower: str, node: str | None, s_node: dict[str, float], links: dict[tuple[str, str], int],
+                    model: SeparationModel | None = None) -> tuple[float, float]:
     """(max deceleration needed to stop at the junction signal while it is red for the follower,
-    time red inside its service braking distance) — nan, 0 without data."""
+    time red while the signal lay inside its guaranteed service braking distance: the separation
+    model's stopping distance on its route, after the dead time, on the grades, with the brake at
+    the low end of its box — ``model`` None: the shipped assumption set) — nan, 0 without data."""
     if node is None or run.signals.empty or follower not in run.traces:
         return math.nan, 0.0
     li, _ = link_of(setup, follower, node, links)
@@ -70,11 +75,12 @@ def signal_exposure(setup: Setup, run: RunResult, follower: str, node: str | Non
     mask = is_red & (d > 0.0)
     if not mask.any():
         return 0.0, 0.0
-    b = setup.stock.service_brake_decel_mps2
+    model = model or SeparationModel(load_assumptions())
+    braking = RouteBraking(model, setup.stock, setup.profiles[follower], "service")
     req = v[mask] ** 2 / (2.0 * np.maximum(d[mask], 0.5))
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    inside = float(((v[mask] ** 2 / (2 * b)) >= d[mask]).sum() * dt)
-    return float(req.max()), inside
+    inside = sum(braking.stopping_distance(float(sk), float(vk), model.dead_time_s) >= dk for sk, vk, dk in zip(s[mask], v[mask], d[mask])) * dt
+    return float(req.max()), float(inside)
 
 
 def _lost_along(run: RunResult, solo: RunResult, role: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
