@@ -51,7 +51,8 @@ def batch(cfg: BatchConfig) -> None:
 
         with recording(cfg.recorded_inputs()):
             df = run_batch(line, inp.timetables, cfg.regimes, inp.seeds, cfg.controllers, inp.delays, inp.delay_config, cfg.out_path, cfg.workers,
-                           cfg.scheduler, cfg.step_length_s, cfg.block_length_m, cfg.window_s, cfg.retry_failed, progress, command)
+                           cfg.scheduler, cfg.step_length_s, cfg.block_length_m, cfg.window_s, cfg.retry_failed, progress, command,
+                           assumptions=inp.assumptions)
     folder = df.attrs["out"]
     summ = summarize(df)
     if len(summ):

@@ -49,12 +49,14 @@ from vcsumo.errors import InputError, VcsumoError
 from vcsumo.line import Line
 from vcsumo.network_file import load_line_or_network
 from vcsumo.results import ResultsFolder, file_digest
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.studies.batch_run import (
     BATCH_COLUMNS,
     DEFAULT_CONTROLLER,
     PUNCTUALITY_THRESHOLDS_S,
     TRAIN_COLUMNS,
     RunSpec,
+    assumptions_digest,
     failed_outcome,
     run_key,
     run_one,
@@ -115,15 +117,17 @@ def resolve_timetables(spec: str | Iterable[str | Path] | None, line: Line) -> l
     return [p for p in out if not (p in seen or seen.add(p))]
 
 
-def default_batch_out(line: Line, delay_sha256: str, step_length_s: float, block_length_m: float | None) -> Path:
+def default_batch_out(line: Line, delay_sha256: str, step_length_s: float, block_length_m: float | None, assumptions_sha256: str = "") -> Path:
     """``results/batch-<line>-<hash>``: the same for the same line and settings, so re-running resumes."""
-    h = hashlib.sha256(f"{line.source_digest()}|{delay_sha256}|{step_length_s:g}|{block_length_m}".encode()).hexdigest()[:8]
+    h = hashlib.sha256(f"{line.source_digest()}|{delay_sha256}|{step_length_s:g}|{block_length_m}|{assumptions_sha256}".encode()).hexdigest()[:8]
     return Path("results") / f"batch-{line.name}-{h}"
 
 
 def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: list[int], controllers: list[str], delays: DelayConfig,
-              out: Path, step_length_s: float = 0.5, block_length_m: float | None = None, command: str = "") -> list[RunSpec]:
-    """Every timetable × regime × controller (vc only) × seed, in that order."""
+              out: Path, step_length_s: float = 0.5, block_length_m: float | None = None, command: str = "",
+              assumptions: AssumptionSet | None = None) -> list[RunSpec]:
+    """Every timetable × regime × controller (vc only) × seed, in that order, supervised and judged
+    under ``assumptions`` (None: the shipped default set)."""
     from vcsumo.results import safe_component
 
     for r in regimes:
@@ -133,6 +137,8 @@ def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: lis
         raise InputError(None, "--seeds", "no seeds")
     d_sha = config_digest(delays)
     l_sha = line.source_digest()
+    a_rec = (assumptions or load_assumptions()).record()
+    a_sha = assumptions_digest(a_rec)
     specs = []
     no_convoys: list[Path] = []  # the vc regime runs a timetable's convoys: without any it is not run there
     for tt in timetables:
@@ -144,13 +150,13 @@ def plan_runs(line: Line, timetables: list[Path], regimes: list[str], seeds: lis
                 continue
             for ctrl in (controllers or [DEFAULT_CONTROLLER]) if regime == "vc" else [""]:
                 for seed in seeds:
-                    key = run_key(t_sha, regime, ctrl, seed, d_sha, l_sha, step_length_s, block_length_m)
+                    key = run_key(t_sha, regime, ctrl, seed, d_sha, l_sha, step_length_s, block_length_m, a_sha)
                     name = safe_component(f"{tt.stem}-{regime}{'-' + ctrl if ctrl else ''}-s{seed}-{key[:8]}")  # ctrl may hold a path
                     specs.append(RunSpec(
                         line_path=str(line.path), block_length_m=block_length_m, timetable_path=str(tt), timetable=tt.stem,
                         timetable_sha256=t_sha, regime=regime, controller=ctrl, seed=int(seed), delays=delays.model_dump(mode="json"),
                         delay_config_sha256=d_sha, step_length_s=step_length_s, run_dir=str((out / "runs" / name).resolve()), key=key,
-                        line=line.name, command=command,
+                        line=line.name, command=command, assumptions=a_rec, assumptions_sha256=a_sha,
                     ))
     if no_convoys:
         names = ", ".join(p.name for p in no_convoys)
@@ -204,6 +210,7 @@ def run_batch(
     retry_failed: bool = False,
     progress: Callable[[int, int, dict | None], None] | None = None,
     command: str = "",
+    assumptions: AssumptionSet | None = None,
 ) -> pd.DataFrame:
     """Run (or resume) a batch; returns its rows (``BATCH_COLUMNS``) in plan order.
 
@@ -213,6 +220,8 @@ def run_batch(
     ``df.attrs`` holds ``out`` (the folder), ``new_runs`` (runs executed now), ``resumed_runs``
     (found finished in ``batch.csv``), ``failed_runs`` and ``new_failed``.
     ``progress(done, total, row)`` is called before the first new run and after every one.
+    ``assumptions``: the separation model's set every run is supervised and judged with and UIC 406
+    computed under (None: the shipped default); part of every run's resume key.
     """
     if not isinstance(line, Line):
         line = load_line_or_network(line)
@@ -230,12 +239,14 @@ def run_batch(
         raise InputError(None, "--window-s", "the observation window must be positive")
     tts = resolve_timetables(timetables, line)
     runner = Runner(workers, scheduler)  # --workers and --scheduler checked before anything is built or written
-    out = Path(out) if out is not None else default_batch_out(line, config_digest(delays), step_length_s, block_length_m)
+    assumptions = assumptions or load_assumptions()
+    out = Path(out) if out is not None else default_batch_out(line, config_digest(delays), step_length_s, block_length_m,
+                                                              assumptions_digest(assumptions.record()))
     t_wall = time.perf_counter()
     from vcsumo.sim.network import build_network
 
     build_network(line, block_length_m)  # once, before the workers need it
-    specs = plan_runs(line, tts, regimes, seeds, controllers, delays, out, step_length_s, block_length_m, command)
+    specs = plan_runs(line, tts, regimes, seeds, controllers, delays, out, step_length_s, block_length_m, command, assumptions)
     requested = {s.key for s in specs}
     runner.log_path, runner.partial_roots = out / "workers.log", [out / "runs"]
     with runner, ResultStore(out, BATCH_TABLE, [TRAINS_TABLE], kind="batch") as store:
@@ -243,7 +254,7 @@ def run_batch(
         if retry_failed:
             existing = read_batch(out)
             store.forget(existing.loc[(existing["status"] == "failed") & existing["run_key"].isin(requested), "run_key"])
-        uic = uic_table(out, line, specs, window_s, step_length_s, block_length_m)
+        uic = uic_table(out, line, specs, window_s, step_length_s, block_length_m, assumptions)
 
         tasks = [Task(s.key, run_one, s, s.label) for s in specs]
         res = run_campaign(store, tasks, runner, _to_rows(uic, window_s),
@@ -258,7 +269,7 @@ def run_batch(
         df["capacity_consumption_pct"] = [c[0] for c in caps]
         df["capacity_consumption_cyclic_pct"] = [c[1] for c in caps]
         write_report(out, df, line, tts, delays, delay_config_path, seeds, regimes, controllers, step_length_s, block_length_m, window_s,
-                     time.perf_counter() - t_wall, res.new, res.resumed)
+                     time.perf_counter() - t_wall, res.new, res.resumed, assumptions)
     df.attrs.update(out=out, new_runs=res.new, resumed_runs=res.resumed, failed_runs=int((df["status"] != "ok").sum()), new_failed=res.failed)
     return df
 
@@ -301,7 +312,7 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
 
 def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path], delays: DelayConfig, delay_config_path: Path | None,
                  seeds: list[int], regimes: list[str], controllers: list[str], step_length_s: float, block_length_m: float | None,
-                 window_s: float, wall_time_s: float, new_runs: int, resumed_runs: int) -> None:
+                 window_s: float, wall_time_s: float, new_runs: int, resumed_runs: int, assumptions: AssumptionSet | None = None) -> None:
     """``report/``: batch_summary.csv, the plots (from the CSVs only) and meta.json."""
     inputs: dict[str, Path] = {"line": line.path}
     for i, p in enumerate(timetables):
@@ -311,15 +322,17 @@ def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path]
     params = {"seeds": seeds, "regimes": regimes, "controllers": controllers, "step_length_s": step_length_s,
               "block_length_m": block_length_m, "uic406_window_s": window_s, "delays": delays.model_dump(mode="json"),
               "delay_config_sha256": config_digest(delays), "runs": len(df), "new_runs": new_runs, "resumed_runs": resumed_runs,
-              "batch_wall_time_s": round(wall_time_s, 3)}
+              "batch_wall_time_s": round(wall_time_s, 3), "assumptions": (assumptions or load_assumptions()).record()}
     with ResultsFolder(out / "report", inputs=inputs, seed=None, params=params, overwrite=True) as rf:
         df.to_csv(rf.path / "batch_runs.csv", index=False)
         summarize(df).to_csv(rf.path / "batch_summary.csv", index=False)
         uic = out / "uic406.csv"
         if uic.is_file():
-            u = pd.read_csv(uic, dtype={"timetable_sha256": str})
+            u = pd.read_csv(uic, dtype={"timetable_sha256": str, "assumptions_sha256": str})
             shas = set(df["timetable_sha256"])
-            u[u["timetable_sha256"].isin(shas) & u["regime"].isin(regimes) & (u["window_s"] == window_s)].to_csv(rf.path / "uic406.csv", index=False)
+            a_sha = assumptions_digest((assumptions or load_assumptions()).record())
+            u[u["timetable_sha256"].isin(shas) & u["regime"].isin(regimes) & (u["window_s"] == window_s)
+              & (u["assumptions_sha256"] == a_sha)].to_csv(rf.path / "uic406.csv", index=False)
         from vcsumo.plots.batch import plot_delays, plot_punctuality
 
         plot_delays(out / "batch_trains.csv", rf.path / "batch_runs.csv", rf.path / "batch_delays.png")

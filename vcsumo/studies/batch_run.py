@@ -90,6 +90,17 @@ class RunSpec:
     key: str
     line: str
     command: str = ""
+    assumptions: dict | None = None
+    """The separation model's assumption set every run of the batch is supervised and judged with
+    (:meth:`AssumptionSet.record`; None: the shipped default)."""
+    assumptions_sha256: str = ""
+    """Its digest (:func:`assumptions_digest`), part of the run's key."""
+
+    def assumption_set(self):
+        """The run's :class:`~vcsumo.signalling.assumptions.AssumptionSet`."""
+        from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
+
+        return load_assumptions() if self.assumptions is None else AssumptionSet.model_validate(self.assumptions)
 
     @property
     def label(self) -> str:
@@ -98,10 +109,15 @@ class RunSpec:
 
 
 def run_key(timetable_sha256: str, regime: str, controller: str, seed: int, delay_sha256: str, line_sha256: str,
-            step_length_s: float, block_length_m: float | None) -> str:
+            step_length_s: float, block_length_m: float | None, assumptions_sha256: str = "") -> str:
     """The resume key of a run (16 hex digits)."""
-    text = f"{timetable_sha256}|{regime}|{controller}|{int(seed)}|{delay_sha256}|{line_sha256}|{step_length_s:g}|{block_length_m}"
+    text = f"{timetable_sha256}|{regime}|{controller}|{int(seed)}|{delay_sha256}|{line_sha256}|{step_length_s:g}|{block_length_m}|{assumptions_sha256}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def assumptions_digest(record: dict) -> str:
+    """SHA-256 of an assumption set's record (every value, not only its name), 16 hex digits."""
+    return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def _one_line(msg: str) -> str:
@@ -145,7 +161,6 @@ def _run(spec: RunSpec) -> dict:
     from vcsumo.sim.loop import Scenario, simulate
     from vcsumo.timetable import load_timetable, plan_trains
     from vcsumo.signalling.scheduled_run import reference_arrivals
-    from vcsumo.signalling.assumptions import load_assumptions
     from vcsumo.signalling.separation import SeparationModel
 
     line = load_line_or_network(spec.line_path)
@@ -159,18 +174,20 @@ def _run(spec: RunSpec) -> dict:
     planned = plan_trains(tt, tt_path, line, net.topology, dt=spec.step_length_s)
     cfg = DelayConfig.model_validate(spec.delays)
     trains, delays = inject_delays(planned, cfg, spec.seed, spec.timetable_sha256)
+    aset = spec.assumption_set()
     driver = None
     if spec.regime == "vc":
         from vcsumo.sim.vc_driver import make_vc_driver
 
-        driver = make_vc_driver(tt, tt_path, trains, spec.controller or DEFAULT_CONTROLLER, spec.step_length_s, spec.seed)
+        driver = make_vc_driver(tt, tt_path, trains, spec.controller or DEFAULT_CONTROLLER, spec.step_length_s, spec.seed, assumptions=aset)
     # measured against the train's own supervised run (every train SUMO drives brakes on its guaranteed curves)
-    ref = reference_arrivals(planned, spec.step_length_s, SeparationModel(load_assumptions()))
+    ref = reference_arrivals(planned, spec.step_length_s, SeparationModel(aset))
     params = {"regime": spec.regime, "controller": spec.controller or None, "step_length_s": spec.step_length_s,
               "block_length_m": spec.block_length_m, "delays": spec.delays, "delay_config_sha256": spec.delay_config_sha256,
-              "run_key": spec.key, "batch_command": spec.command}
+              "run_key": spec.key, "batch_command": spec.command, "assumptions": aset.record()}
     with ResultsFolder(Path(spec.run_dir), inputs={**line.input_files(), "timetable": tt_path}, seed=spec.seed, params=params, overwrite=True) as rf:
-        scn = Scenario(line, net, trains, spec.regime, step_length_s=spec.step_length_s, seed=spec.seed, driver=driver, full_outputs=False)
+        scn = Scenario(line, net, trains, spec.regime, step_length_s=spec.step_length_s, seed=spec.seed, driver=driver, full_outputs=False,
+                       assumptions=aset)
         res = simulate(scn, rf.path)
         if driver is not None:
             driver.write_report(rf.path)

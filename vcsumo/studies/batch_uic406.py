@@ -13,28 +13,31 @@ import pandas as pd
 from vcsumo.engine.store import atomic_csv
 from vcsumo.errors import VcsumoError
 from vcsumo.line import Line
-from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.separation import SeparationModel
-from vcsumo.studies.batch_run import RunSpec
+from vcsumo.studies.batch_run import RunSpec, assumptions_digest
 
-UIC_COLUMNS = ["timetable", "timetable_sha256", "regime", "assumptions", "step_length_s", "window_s", "direction", "section", "from_km", "to_km",
+UIC_COLUMNS = ["timetable", "timetable_sha256", "regime", "assumptions", "assumptions_sha256", "step_length_s", "window_s", "direction", "section", "from_km", "to_km",
                "length_m", "blocks", "trains", "scheduled_span_s", "occupation_s", "consumption_pct", "cycle_s", "cyclic_consumption_pct",
                "peak_window_start_s", "trains_in_window"]
 
 
-def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step_length_s: float, block_length_m: float | None) -> pd.DataFrame:
+def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step_length_s: float, block_length_m: float | None,
+              assumptions: AssumptionSet | None = None) -> pd.DataFrame:
     """The folder's ``uic406.csv`` (``UIC_COLUMNS``), completed with every timetable and regime of
     ``specs`` not yet in it (a timetable that fails to plan is skipped: its runs fail with the error)."""
     path = out / "uic406.csv"
-    have = pd.read_csv(path, dtype={"timetable_sha256": str, "timetable": str, "assumptions": str}) if path.is_file() else pd.DataFrame(columns=UIC_COLUMNS)
+    have = pd.read_csv(path, dtype={"timetable_sha256": str, "timetable": str, "assumptions": str, "assumptions_sha256": str}) if path.is_file() \
+        else pd.DataFrame(columns=UIC_COLUMNS)
     if list(have.columns) != UIC_COLUMNS:  # (a folder of an older vcsumo: its figures were on SUMO's nominal braking, computed again)
         have = pd.DataFrame(columns=UIC_COLUMNS)
-    model = SeparationModel(load_assumptions())  # the set every run of the batch is supervised with (vcsumo.studies.batch_run)
+    model = SeparationModel(assumptions or load_assumptions())  # the set every run of the batch is supervised with (vcsumo.studies.batch_run)
     set_name = model.assumptions.name
+    set_sha = assumptions_digest(model.assumptions.record())  # (a set edited under the same name is another set)
 
     def cached(sha: str, regime: str) -> bool:
         m = (have["timetable_sha256"] == sha) & (have["regime"] == regime) & (have["window_s"] == window_s) & (have["step_length_s"] == step_length_s) \
-            & (have["assumptions"] == set_name)
+            & (have["assumptions_sha256"] == set_sha)
         return bool(m.any())
 
     need: dict[str, tuple[RunSpec, set[str]]] = {}
@@ -65,7 +68,8 @@ def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step
             df.insert(0, "timetable", spec.timetable)
             df.insert(1, "timetable_sha256", sha)
             df.insert(3, "assumptions", set_name)
-            df.insert(4, "step_length_s", step_length_s)
+            df.insert(4, "assumptions_sha256", set_sha)
+            df.insert(5, "step_length_s", step_length_s)
             new.append(df[UIC_COLUMNS])
     if new:
         have = pd.concat([have] + new, ignore_index=True) if len(have) else pd.concat(new, ignore_index=True)
@@ -75,7 +79,8 @@ def uic_table(out: Path, line: Line, specs: list[RunSpec], window_s: float, step
 
 def run_capacity(uic: pd.DataFrame, spec: RunSpec, window_s: float) -> tuple[float, float]:
     """(largest, largest cyclic) consumption over the line sections for a run's timetable and regime, % (nan if none)."""
-    m = (uic["timetable_sha256"] == spec.timetable_sha256) & (uic["regime"] == spec.regime) & (uic["window_s"] == window_s) & (uic["step_length_s"] == spec.step_length_s)
+    m = (uic["timetable_sha256"] == spec.timetable_sha256) & (uic["regime"] == spec.regime) & (uic["window_s"] == window_s) & (uic["step_length_s"] == spec.step_length_s) \
+        & (uic["assumptions_sha256"] == spec.assumptions_sha256)
     sel = uic[m]
     if sel.empty:
         return math.nan, math.nan

@@ -253,6 +253,7 @@ class BatchConfig(CommandConfig):
     scheduler: Scheduler = None
     step_length_s: Step = Field(default=0.5, description="SUMO step, s (0–2 s)", json_schema_extra={"option": "--step-length", "unit": "s"})
     block_length_m: BlockLength = None
+    assumptions: Assumptions = None
     window_s: float = Field(default=3600.0, ge=60, le=86400, description="UIC 406 observation window, s (1 min–1 day): each section is judged in its busiest window of this length (the peak hour by default)", json_schema_extra={"unit": "s"})
     retry_failed: bool = Field(default=False, description="Run again the runs that failed in an earlier invocation")
     out: Out = Field(default=None, description="Batch folder (default: results/batch-<line>-<hash of line and delays>; the same command resumes there); "
@@ -303,7 +304,11 @@ class BatchConfig(CommandConfig):
                 raise self.problem("delay_config", f"delay configuration '{self.delay_config}' not found")
             delay_path = Path(self.delay_config)
         delays = load_delay_config(delay_path)
-        return BatchInputs(line, files, delays, delay_path, list(range(self.first_seed, self.first_seed + self.seeds)))
+        from vcsumo.signalling.assumptions import load_assumptions
+
+        with self.blame("assumptions"):
+            aset = load_assumptions(self.assumptions)
+        return BatchInputs(line, files, delays, delay_path, list(range(self.first_seed, self.first_seed + self.seeds)), aset)
 
 
 @dataclass
@@ -313,6 +318,7 @@ class BatchInputs:
     delays: Any
     delay_config: Path | None
     seeds: list[int]
+    assumptions: AssumptionSet
 
 
 class StudyRunConfig(CommandConfig):
