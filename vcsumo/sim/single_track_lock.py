@@ -166,8 +166,7 @@ class SingleTrackLocking:
         for t in sorted(trains, key=lambda x: x.depart_s):
             runs = self.runs.get(t.id)
             if runs and runs[0].starts_inside:
-                k0 = t.profile.index_at(t.start_s_m)
-                sig = next((topo.edges[e].to_node for e in t.edges[k0:-1] if topo.edges[e].to_node in self.signals), None)
+                sig = topo.first_signal_ahead(t.edges, t.profile.starts_m, t.start_s_m)
                 if sig is not None:
                     self.inserting[t.id] = (t.depart_s, runs[0], sig)
 
