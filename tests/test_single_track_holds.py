@@ -77,3 +77,49 @@ def test_the_insertion_hold_is_at_the_platform_exit_signal(tmp_path):
         w1 = next(t for t in plan_trains(tt, path, line, topo) if t.id == "W1")
     sig = topo.first_signal_ahead(w1.edges, w1.profile.starts_m, w1.start_s_m)
     assert topo.nodes[sig].km == pytest.approx(9.85)  # Middle's exit signal towards West
+
+
+BRANCHED = """
+name: sdb
+km_start: 0.0
+km_end: 5.0
+tracks: single
+line_speed_kmh: 100
+stations:
+  - {id: NA, name: Northa, km: 4.5, platform_length_m: 400, dwell_s: 30}
+signalling: {block_length_m: 800}
+branches:
+  - {id: xtra, name: Extra, junction_km: 2.0, leaves_towards: end, length_m: 3000, speed_kmh: 120, diverging_speed_kmh: 50, tracks: double,
+     block_length_m: 1000, stations: [{id: XA, name: Extra, km: 0.5, platform_length_m: 400, dwell_s: 30}]}
+"""  # test_unseen10_network's north/extra network as one line: a single-track line with a double-track branch
+THROUGH_THE_JUNCTION = """
+name: tt
+line: sdb
+services:
+  - {id: U1, train: etr1000, origin: start, destination: XA, departure: "08:00"}
+  - {id: U2, train: etr1000, origin: XA, destination: start, departure: "08:00"}
+  - {id: U3, train: etr1000, origin: NA, destination: start, departure: "08:02"}
+"""
+
+
+@pytest.mark.parametrize("regime", ["mb", "fbs"])
+def test_a_double_track_branch_of_a_single_track_line_does_not_deadlock(tmp_path, regime):
+    """U1 leaves the single track onto the double-track branch while U2, coming off the branch,
+    waits for that single track.  Both branch tracks met the single track at the junction node,
+    and the line builder connected every track there, reversals included (from the down main
+    line onto the branch, off the branch onto the up main line): under mb nobody moved (0/3
+    arrived at 08:20), under fbs 3/3 with an authority overrun.  Now the branch's tracks
+    converge one signal before the junction (its last edge is single track, as a double-track
+    line joined inside a single-track one in a network) and no move reverses (converging alone,
+    with the builder's connections, deadlocked fbs too: 0/3)."""
+    s, _, topo, _ = _run(tmp_path, BRANCHED, THROUGH_THE_JUNCTION, regime, end_time_s=8 * 3600 + 20 * 60)
+    assert (s["trains_arrived"], s["authority_overruns"], s["collisions"], s["healthy"]) == (3, 0, 0, True), s
+    assert topo.edges["xtra_up_0"].bidi == "xtra_down_4"  # converged at the branch's km 0.3 signal
+    for e, nxt in topo.successors.items():
+        for n in nxt:
+            a, b = topo.edges[e], topo.edges[n]
+            assert not (a.section == b.section and a.direction != b.direction), (e, n)  # no reversal on a section
+            if a.section == "main" and b.section == "xtra":
+                assert a.direction == "up", (e, n)  # onto the branch only from the side it leaves towards
+            if a.section == "xtra" and b.section == "main":
+                assert b.direction == "down", (e, n)
