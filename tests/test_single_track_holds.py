@@ -123,3 +123,28 @@ def test_a_double_track_branch_of_a_single_track_line_does_not_deadlock(tmp_path
                 assert a.direction == "up", (e, n)  # onto the branch only from the side it leaves towards
             if a.section == "xtra" and b.section == "main":
                 assert b.direction == "down", (e, n)
+
+
+def _rear_past_convergence(tmp_path, regime: str) -> tuple[float, float]:
+    """U1's rear past the branch's convergence point (its km 0.3 signal, where U2 stands) when U2
+    first moves and when U2's front passes that point, m."""
+    tr = pd.read_csv(tmp_path / regime / "trajectories.csv")
+    u1, u2 = tr[tr.train == "U1"].set_index("time_s"), tr[tr.train == "U2"].set_index("time_s")
+    x1, x2 = 2300.0, 400.0  # the convergence point on U1's route (km 2.0 + 0.3 km of branch) and on U2's (its platform's exit)
+    starts, passes = u2[u2.speed_mps > 0.05].index.min(), u2[u2.s_m > x2 + 0.05].index.min()
+    return u1.loc[starts, "s_m"] - 202.0 - x1, u1.loc[passes, "s_m"] - 202.0 - x1  # (an ETR 1000 is 202 m long)
+
+
+@pytest.mark.parametrize("regime", ["mb", "fbs"])
+def test_a_train_standing_at_the_entry_of_single_track_waits_for_the_opposing_rear_to_clear(tmp_path, regime):
+    """U2 stands with its front exactly where the branch's tracks converge onto the single track
+    (its platform's exit signal).  The lock took a train whose front was *at* the entry for one
+    already on the stretch and gave it the stretch at once, so nothing but SUMO's signal held U2:
+    it started with U1's rear 14 m past the convergence point (9 m under vc) and passed it with
+    U1's rear 42 m past, inside the lock's clearance (60 m: overlap or margin 50 m + position
+    error 10 m, + the report's age at speed), and the run was healthy.  Now U2 asks for the stretch
+    like any train in front of it and starts once U1's rear has cleared the point by the clearance."""
+    s, _, _, _ = _run(tmp_path, BRANCHED, THROUGH_THE_JUNCTION, regime, end_time_s=8 * 3600 + 20 * 60)
+    assert (s["trains_arrived"], s["authority_overruns"], s["collisions"], s["healthy"]) == (3, 0, 0, True), s
+    starts, passes = _rear_past_convergence(tmp_path, regime)
+    assert starts >= 60.0 and passes >= 60.0, (starts, passes)

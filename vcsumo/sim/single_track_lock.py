@@ -224,7 +224,7 @@ class SingleTrackLocking:
                 queue = self.order.setdefault(run.stretch, [])
                 asked = any(x == tid and r.first == run.first for x, r in queue)
                 if not asked:
-                    if run.starts_inside or s_m >= run.entry_s:  # already on it (departed there): holds it from now
+                    if run.starts_inside or s_m > run.entry_s + 1e-6:  # already on it (departed there): holds it from now
                         queue.insert(0, (tid, run))
                         self.given.add(key)
                         self.on_change()
