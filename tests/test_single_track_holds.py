@@ -148,3 +148,17 @@ def test_a_train_standing_at_the_entry_of_single_track_waits_for_the_opposing_re
     assert (s["trains_arrived"], s["authority_overruns"], s["collisions"], s["healthy"]) == (3, 0, 0, True), s
     starts, passes = _rear_past_convergence(tmp_path, regime)
     assert starts >= 60.0 and passes >= 60.0, (starts, passes)
+
+
+def test_entering_single_track_close_behind_an_opposing_train_is_a_gap_violation(tmp_path):
+    """The check that the lock's clearance held can fire: SUMO alone (no supervision, no lock) lets
+    U2 off the branch onto the single track as soon as U1's rear has passed the convergence point
+    (by 9 m when it starts, 46 m when its front passes the point, against the lock's 60 m:
+    overlap or margin 50 m + position error 10 m).  The run was healthy; now the entry is a gap
+    violation (violations.csv: U2 behind U1, the gap U1's rear past the point) and it is not."""
+    s, per, _, _ = _run(tmp_path, BRANCHED, THROUGH_THE_JUNCTION, "fbs", end_time_s=8 * 3600 + 20 * 60, supervise=False)
+    starts, passes = _rear_past_convergence(tmp_path, "fbs")
+    assert starts < 60.0 and passes < 60.0, (starts, passes)  # (the case: SUMO's own signal let it in too close)
+    assert per.loc["U2", "gap_violations"] == 1 and not s["healthy"], (per, s)
+    v = pd.read_csv(tmp_path / "fbs" / "violations.csv")
+    assert list(v[["train", "leader"]].iloc[0]) == ["U2", "U1"] and starts <= v.gap_m.iloc[0] <= passes and v.safe_separation_m.iloc[0] == 60.0, (v, starts, passes)

@@ -127,6 +127,12 @@ def route_runs(topo: Topology, plan: PlannedTrain, stretch_of: dict[str, int]) -
     return out
 
 
+def clearance(assumptions) -> float:
+    """The least distance a train's rear must have cleared a stretch by, where it left it, before an
+    opposing train enters there (the overlap or the margin, and the position error), m."""
+    return max(assumptions.overlap_m, assumptions.safety_margin_m) + assumptions.position_error_m
+
+
 class SingleTrackLocking:
     """Gives the stretches of single track to one direction at a time (module doc)."""
 
@@ -247,7 +253,7 @@ class SingleTrackLocking:
             for tid, run in queue:
                 st = states.get(tid)
                 length = self.plans[tid].stock.length_m
-                clear = max(a.overlap_m, a.safety_margin_m) + a.position_error_m + (st[1] if st else 0.0) * (a.position_report_period_s + a.fixed_time_s) + 1.0
+                clear = clearance(a) + (st[1] if st else 0.0) * (a.position_report_period_s + a.fixed_time_s) + 1.0
                 if tid in self.gone or (st is not None and not run.ends_inside and st[0] - length > run.exit_s + clear):
                     self.done.add((tid, run.first))
                     self.given.discard((tid, run.first))
@@ -304,7 +310,14 @@ class SingleTrackLocking:
 class OpposingTrains:
     """Counts trains that met head on on single track (module doc)."""
 
-    def __init__(self, topo: Topology, trains: list[PlannedTrain]):
+    def __init__(self, topo: Topology, trains: list[PlannedTrain], clearance_m: float = 0.0):
+        self.clearance_m = clearance_m
+        """How far past the point where a train leaves a stretch its rear must be before an opposing
+        train enters there (:func:`clearance`), m."""
+        self.too_close: list[tuple[str, str, float, tuple[str, float]]] = []
+        """This step's trains that entered a stretch too close to an opposing train: (train, the
+        other, the other's rear past where it left the stretch (m, negative: still on it), (section,
+        km) of the entering train's front)."""
         stretch_of = stretches(topo)
         self.plans = {t.id: t for t in trains}
         self.runs = {t.id: runs for t in trains if stretch_of and (runs := route_runs(topo, t, stretch_of))}
@@ -319,6 +332,27 @@ class OpposingTrains:
         self._prev: dict[str, float] = {}
         self.meeting: set[frozenset[str]] = set()
         """Pairs overlapping now (one collision per episode)."""
+
+    def _entering(self, positions: dict[str, float]) -> list[tuple[str, str, float, tuple[str, float]]]:
+        """Trains whose front has just passed the entry of a stretch while a train running the other
+        way had not cleared it (where that train left it at the point this one enters it, its rear
+        must be :attr:`clearance_m` past it; elsewhere, off the stretch)."""
+        out = []
+        for tid, s in positions.items():
+            prev = self._prev.get(tid)
+            if tid not in self.runs or prev is None or s != s:
+                continue
+            for run in self.runs[tid]:
+                if not prev <= run.entry_s < s:
+                    continue
+                for other, so in positions.items():
+                    for r in self.runs.get(other, ()) if other != tid else ():
+                        if not r.opposes(run) or so < r.entry_s:
+                            continue  # (not on it yet: the head-on check's)
+                        past = so - self.plans[other].stock.length_m - r.exit_s
+                        if past < (self.clearance_m if r.exit_node == run.entry_node else 0.0):
+                            out.append((tid, other, past, self.plans[tid].profile.km_at(s)))
+        return out
 
     def _pieces(self, tid: str, lo: float, hi: float) -> list[tuple[str, float, float, bool]]:
         """The single-track pieces a train covers between route positions lo and hi: (pair, from, to, along)."""
@@ -339,9 +373,11 @@ class OpposingTrains:
         return out
 
     def step(self, positions: dict[str, float]) -> list[tuple[str, str]]:
-        """This step's route positions of the running trains -> pairs that have just met head on."""
+        """This step's route positions of the running trains -> pairs that have just met head on
+        (and :attr:`too_close`)."""
         if not self.active:
             return []
+        self.too_close = self._entering(positions)
         occupied: dict[str, list[tuple[float, float, bool, str]]] = {}
         for tid, s in positions.items():
             if tid not in self.runs or s != s:
