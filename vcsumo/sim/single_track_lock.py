@@ -36,7 +36,9 @@ holds the stretch from its departure.
 :class:`OpposingTrains` is the check that the rule held: two trains running opposite ways whose
 occupied (and, over the step, swept) lengths of the same single track overlap have met head on.
 The loop counts it as a collision, whether or not SUMO saw it (SUMO sees no collision where a
-single track leaves a junction as two one-way edges).
+single track leaves a junction as two one-way edges); a train that enters a stretch where an opposing
+train left it, before that train's rear has cleared the point by :func:`clearance`, or while an
+opposing train is still on it, is a gap violation (:attr:`OpposingTrains.too_close`).
 """
 
 from __future__ import annotations
