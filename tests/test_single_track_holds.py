@@ -178,3 +178,39 @@ def test_entering_single_track_close_behind_an_opposing_train_is_a_gap_violation
     assert per.loc["U2", "gap_violations"] == 1 and not s["healthy"], (per, s)
     v = pd.read_csv(tmp_path / "fbs" / "violations.csv")
     assert list(v[["train", "leader"]].iloc[0]) == ["U2", "U1"] and starts <= v.gap_m.iloc[0] <= passes and v.safe_separation_m.iloc[0] == 60.0, (v, starts, passes)
+
+
+BEFORE_THE_JUNCTION = """
+name: dsj
+km_start: 0.0
+km_end: 10.0
+tracks: double
+line_speed_kmh: 160
+stations:
+  - {id: AAA, name: Alpha, km: 4.6, platform_length_m: 400, dwell_s: 30}
+signalling: {block_length_m: 1000}
+branches:
+  - {id: spur, name: Spur, junction_km: 5.0, leaves_towards: end, length_m: 4000, speed_kmh: 120, diverging_speed_kmh: 60, tracks: single,
+     stations: [{id: BRS, name: Branchside, km: 3.5, platform_length_m: 300, dwell_s: 30}]}
+"""
+ONTO_THE_BRANCH = """
+name: tt
+line: dsj
+services:
+  - {id: B1, train: regional_emu160, origin: BRS, destination: start, departure: "08:00"}
+  - {id: A1, train: regional_emu160, origin: AAA, destination: BRS, departure: "08:01"}
+"""
+
+
+def test_a_train_departing_at_the_signal_before_single_track_held_by_an_opposing_train_stays_there(tmp_path):
+    """A1 departs from Alpha, whose exit signal (km 4.8) is the last before the single-track branch
+    (junction km 5.0), while B1 comes off the branch: under FBS its end of authority is that signal,
+    at its front.  The lock made A1's request at its first step, after that step's supervision had
+    left it to SUMO, whose own signal was clear; SUMO started it and the run reported an authority
+    overrun of 10.26 m (not healthy) for a train that stood at its platform.  Now a train departing
+    within reach of where it would wait asks before SUMO inserts it, and is held from its first step."""
+    s, per, _, _ = _run(tmp_path, BEFORE_THE_JUNCTION, ONTO_THE_BRANCH, "fbs")
+    assert (s["trains_arrived"], s["authority_overruns"], s["collisions"], s["healthy"]) == (2, 0, 0, True), (s, per)
+    tr = pd.read_csv(tmp_path / "fbs" / "trajectories.csv")
+    b1_off = tr[(tr.train == "B1") & (tr.section == "spur")].time_s.max()
+    assert tr[(tr.train == "A1") & (tr.section == "spur")].time_s.min() > b1_off  # A1 entered the branch once B1 had left it

@@ -170,6 +170,10 @@ class SingleTrackLocking:
         self.inserting: dict[str, tuple[float, Run, str]] = {}
         """Trains whose origin lies on a stretch: (departure time, their first run, the first signal
         ahead of them), by departure; kept out of the network until given the stretch (:meth:`attach`)."""
+        self.departing: list[tuple[float, str, Run]] = []
+        """Trains that depart in front of a stretch: (departure time, train, its first run), by
+        departure; one standing within reach of where it would wait asks for it before SUMO inserts
+        it (:meth:`_insertions`), so that its first step is already supervised to that point."""
         self._hold: Callable[[str, str, bool], None] | None = None
         for t in sorted(trains, key=lambda x: x.depart_s):
             runs = self.runs.get(t.id)
@@ -177,6 +181,8 @@ class SingleTrackLocking:
                 sig = topo.first_signal_ahead(t.edges, t.profile.starts_m, t.start_s_m)
                 if sig is not None:
                     self.inserting[t.id] = (t.depart_s, runs[0], sig)
+            elif runs:
+                self.departing.append((t.depart_s, t.id, runs[0]))
 
     def attach(self, hold: Callable[[str, str, bool], None], now_s: float) -> None:
         """Keep every train whose origin lies on a stretch out of the network until it is given the
@@ -188,7 +194,10 @@ class SingleTrackLocking:
         self._insertions(now_s)
 
     def _insertions(self, now_s: float) -> None:
-        """Trains due to enter the network on a stretch by ``now_s`` ask for it; each one given it may enter."""
+        """Trains due to enter the network on a stretch by ``now_s`` ask for it; each one given it may
+        enter.  Then so does a train due to depart in front of one that stands within reach of where
+        it would wait (the request :meth:`update` would make at its first step, after the supervision
+        of that step had let SUMO start it towards a signal it must not pass)."""
         for tid, (dep, run, sig) in list(self.inserting.items()):
             if dep > now_s + 1e-9:
                 break
@@ -202,6 +211,13 @@ class SingleTrackLocking:
                 self.on_change()
                 del self.inserting[tid]
                 self._hold(sig, tid, False)
+        while self.departing and self.departing[0][0] <= now_s + 1e-9:
+            _, tid, run = self.departing.pop(0)
+            if tid not in self.s_m and not self._far(tid, run, self.plans[tid].start_s_m, 0.0):
+                self.order.setdefault(run.stretch, []).append((tid, run))
+                if self._may_have(tid, run):
+                    self.given.add((tid, run.first))
+                self.on_change()
 
     # ------------------------------------------------------------------------------------------
     def _may_have(self, tid: str, run: Run) -> bool:
@@ -237,9 +253,7 @@ class SingleTrackLocking:
                         self.given.add(key)
                         self.on_change()
                         continue
-                    d = self.hold_distance(tid, run, s_m)
-                    br, ahead = self.braking[tid], v * self.lock_time_s + a.position_error_m
-                    if d > br.stopping_bound(v, a.dead_time_s) + ahead or d > br.stopping_distance(s_m, v, a.dead_time_s) + ahead:
+                    if self._far(tid, run, s_m, v):
                         break  # not yet (nor any later stretch of its route)
                     queue.append((tid, run))
                     self.on_change()
@@ -263,9 +277,17 @@ class SingleTrackLocking:
                 else:
                     keep.append((tid, run))
             self.order[k] = keep
-        if self._hold is not None and now_s is not None and self.inserting:
+        if self._hold is not None and now_s is not None and (self.inserting or self.departing):
             self._insertions(now_s)
         return new
+
+    def _far(self, tid: str, run: Run, s_m: float, v: float) -> bool:
+        """The train (front at ``s_m``, speed ``v``) is not yet within its stopping distance (+ the
+        lock time's running and the position error) of where it would wait for the stretch."""
+        a = self.model.assumptions
+        d = self.hold_distance(tid, run, s_m)
+        br, ahead = self.braking[tid], v * self.lock_time_s + a.position_error_m
+        return d > br.stopping_bound(v, a.dead_time_s) + ahead or d > br.stopping_distance(s_m, v, a.dead_time_s) + ahead
 
     def _constrain(self, tid: str, run: Run, new: list) -> None:
         """SUMO may set the route onto the stretch for ``tid`` only after each train it waits for has
