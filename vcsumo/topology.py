@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from vcsumo.dynamics import curve_equivalent_gradient
 from vcsumo.errors import InputError
 from vcsumo.line import Branch, Line, Station
-from vcsumo.track_graph import EPS_KM, Platform, TopoEdge, TopoNode, Topology, Track, reachable
+from vcsumo.track_graph import EPS_KM, Platform, TopoEdge, TopoNode, Topology, Track, converge_onto_single_track, reachable
 from vcsumo.units import kmh_to_ms
 
 TRACK_SPACING_M = 8.0
@@ -227,12 +227,16 @@ def build_topology(line: Line, block_length_m: float | None = None, junctions_km
     for br in d.branches:
         _add_branch(topo, line, br, junction_nodes, blk if br.block_length_m is None else br.block_length_m, sig.min_block_length_m)
 
+    if single_main:  # a double-track branch of a single-track line: its tracks converge one signal before the junction
+        converge_onto_single_track(topo, {junction_nodes[(_round_km(b.junction_km), "up")] for b in d.branches
+                                          if (b.tracks or d.tracks) == "double"})
+
     # --- successors (no reversing onto the bidi twin)
     out_of: dict[str, list[str]] = {}
     for e in topo.edges.values():
         out_of.setdefault(e.from_node, []).append(e.id)
     for e in topo.edges.values():
-        topo.successors[e.id] = [n for n in out_of.get(e.to_node, []) if n != e.bidi]
+        topo.successors[e.id] = [n for n in out_of.get(e.to_node, []) if n != e.bidi and not _reverses(line, e, topo.edges[n])]
     # turnout speeds: every main<->branch transition
     for e in topo.edges.values():
         for n in topo.successors[e.id]:
@@ -278,6 +282,22 @@ def build_topology(line: Line, block_length_m: float | None = None, junctions_km
                     dwell_s=st.dwell_s, km_stop=stop_km, length_m=st.platform_length_m,
                 )
     return topo
+
+
+def _reverses(line: Line, e: TopoEdge, ne: TopoEdge) -> bool:
+    """A move between a single-track main line and a double-track branch that would reverse at the
+    junction (they share its node): onto the branch from the main line's side it does not leave
+    towards, or off it onto the main line's track running back towards that side; or, where a double track converges onto one, from one of its tracks onto the other."""
+    if e.section == ne.section:
+        return e.direction != ne.direction
+    if "main" not in (e.section, ne.section):
+        return False
+    br = line.branch(ne.section if e.section == "main" else e.section)
+    if line.data.tracks != "single" or (br.tracks or line.data.tracks) != "double":
+        return False
+    main = e if e.section == "main" else ne
+    towards_end = main.km_to > main.km_from
+    return towards_end != (br.leaves_towards == "end") if main is e else towards_end == (br.leaves_towards == "end")
 
 
 def _add_track(topo: Topology, sec: _Section, direction: str, pts: list[float], node_ids: list[str], increasing: bool, bidi: bool) -> None:

@@ -8,6 +8,7 @@ profiles and the timetable planner.  Track naming and layout are described in :m
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field, replace
 
@@ -142,6 +143,15 @@ class Topology:
         """Nodes that become SUMO rail signals."""
         entry = self.entry_nodes()
         return {n.id for n in self.nodes.values() if n.signal and n.id not in entry}
+
+    def first_signal_ahead(self, edges: list[str], starts_m, front_s_m: float) -> str | None:
+        """The first signal a train whose front stands at route position ``front_s_m`` has to pass
+        (``edges``: its route; ``starts_m``: the route position of each edge's start, m): the signal
+        at its front when it stands exactly at an edge's end (a platform's exit signal), not the one
+        after it; None when its route ends before one."""
+        k = max(0, bisect_right(starts_m, front_s_m - 0.01) - 1)
+        signals = self.signal_nodes()
+        return next((self.edges[e].to_node for e in edges[k:-1] if self.edges[e].to_node in signals), None)
 
     def platforms_of(self, station_id: str) -> list[Platform]:
         return [p for p in self.platforms.values() if p.station_id == station_id]

@@ -47,11 +47,9 @@ class ConvoyInsertion:
     def attach(self, hold: Callable[[str, str, bool], None], topo: Topology) -> None:
         """Hold every waiting follower now (before the first step): ``hold(signal, train, True)``."""
         self._hold = hold
-        signals = topo.signal_nodes()
         for fid in list(self.waiting):
             plan = self.plans[fid]
-            k0 = plan.profile.index_at(max(0.0, plan.start_s_m - 0.01))  # (a train standing at an edge's end has its signal there)
-            sig = next((topo.edges[e].to_node for e in plan.edges[k0:-1] if topo.edges[e].to_node in signals), None)
+            sig = topo.first_signal_ahead(plan.edges, plan.profile.starts_m, plan.start_s_m)
             if sig is None:
                 del self.waiting[fid]  # no signal to hold it at (its route ends before one): SUMO inserts it as planned
                 continue

@@ -356,6 +356,16 @@ class HealthMonitor:
             h._overrun = False
         return started
 
+    def clearance(self, train_id: str, gap_m: float, required_m: float) -> float:
+        """A train entered a stretch of single track with an opposing train's rear ``gap_m`` past the
+        point where that train left it, short of ``required_m``
+        (:attr:`~vcsumo.sim.single_track_lock.OpposingTrains.too_close`): a gap below the safe
+        separation.  Returns ``required_m``."""
+        h = self.trains[train_id]
+        h.min_margin_m = min(h.min_margin_m, gap_m - required_m)
+        h.separation_violations += 1
+        return required_m
+
     def collision(self, time_s: float, collider: str, victim: str, collider_speed_mps: float, victim_speed_mps: float) -> None:
         impact = 3.6 * max(0.0, collider_speed_mps - victim_speed_mps)
         self.collision_rows.append((time_s, collider, victim, round(impact, 2)))

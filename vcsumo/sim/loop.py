@@ -48,7 +48,7 @@ from vcsumo.sim.records import CsvStream, csv_plain
 from vcsumo.sim.snapshot import Driver, Snapshot, StepTrains, TrainState  # noqa: F401 (Snapshot, TrainState: the drivers' types, also from here)
 from vcsumo.sim.run_results import TRAJECTORY_COLUMNS, TRAJECTORY_FLOATS, SimulationResult, collect_results
 from vcsumo.sim.interlocking import MergeLocking
-from vcsumo.sim.single_track_lock import OpposingTrains
+from vcsumo.sim.single_track_lock import OpposingTrains, clearance
 from vcsumo.sim.supervision import BrakingCurveSupervisor
 from vcsumo.sim.trains_ahead import TrainsAhead
 from vcsumo.sim.sumo_backend import SPEED_MODE_VC_FOLLOWER, SumoBackend, sumo_args
@@ -212,7 +212,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
     dt = scn.step_length_s
     model = SeparationModel(scn.assumptions)
     health = HealthMonitor(model, scn.trains)
-    head_on = OpposingTrains(topo, scn.trains)  # opposing trains meeting on single track: collisions SUMO may not see
+    head_on = OpposingTrains(topo, scn.trains, clearance(scn.assumptions))  # opposing trains meeting on single track: collisions SUMO may not see
     supervisor = locking = None
     if scn.supervise:
         signals = {t.id: t.profile.signal_positions(topo) for t in scn.trains} if scn.rules.supervision == "fbs" else None
@@ -271,9 +271,8 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         tr.mp_s[mp.label] = s_mp
                 state[vid] = tr
             arrived_now = sim.arrived()
-            for vid in arrived_now:
-                if vid in state:
-                    state[vid].arrived_at = t
+            for vid in state.keys() & set(arrived_now):
+                state[vid].arrived_at = t
             active = [v for v in sim.running() if v in state]
             train_steps += len(active)
             observed = sim.observe_all(active)  # (edge, lane pos, speed, accel, odometer, route index)
@@ -402,8 +401,9 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                     if (a_id, b_id) not in touching and (b_id, a_id) not in touching:  # (closing speed as the impact speed)
                         collisions.append((t, a_id, b_id))
                         health.collision(t, a_id, b_id, obs[a_id][2] + obs[b_id][2], 0.0)
-            for vid in sim.teleports():
-                teleports.append((t, vid))
+                for vid, other, past, (sec, km_v) in head_on.too_close:  # onto single track an opposing train had not cleared
+                    violation_rows.append((t, vid, other, sec, round(km_v, 4), obs[vid][2], past, health.clearance(vid, past, head_on.clearance_m), any(r[8] for r in rows if r[0] == vid)))
+            teleports += [(t, vid) for vid in sim.teleports()]
             c = clock()
             cpu["health"] += c - c_mark
             c_mark = c

@@ -36,7 +36,9 @@ holds the stretch from its departure.
 :class:`OpposingTrains` is the check that the rule held: two trains running opposite ways whose
 occupied (and, over the step, swept) lengths of the same single track overlap have met head on.
 The loop counts it as a collision, whether or not SUMO saw it (SUMO sees no collision where a
-single track leaves a junction as two one-way edges).
+single track leaves a junction as two one-way edges); a train that enters a stretch where an opposing
+train left it, before that train's rear has cleared the point by :func:`clearance`, or while an
+opposing train is still on it, is a gap violation (:attr:`OpposingTrains.too_close`).
 """
 
 from __future__ import annotations
@@ -127,6 +129,12 @@ def route_runs(topo: Topology, plan: PlannedTrain, stretch_of: dict[str, int]) -
     return out
 
 
+def clearance(assumptions) -> float:
+    """The least distance a train's rear must have cleared a stretch by, where it left it, before an
+    opposing train enters there (the overlap or the margin, and the position error), m."""
+    return max(assumptions.overlap_m, assumptions.safety_margin_m) + assumptions.position_error_m
+
+
 class SingleTrackLocking:
     """Gives the stretches of single track to one direction at a time (module doc)."""
 
@@ -162,14 +170,19 @@ class SingleTrackLocking:
         self.inserting: dict[str, tuple[float, Run, str]] = {}
         """Trains whose origin lies on a stretch: (departure time, their first run, the first signal
         ahead of them), by departure; kept out of the network until given the stretch (:meth:`attach`)."""
+        self.departing: list[tuple[float, str, Run]] = []
+        """Trains that depart in front of a stretch: (departure time, train, its first run), by
+        departure; one standing within reach of where it would wait asks for it before SUMO inserts
+        it (:meth:`_insertions`), so that its first step is already supervised to that point."""
         self._hold: Callable[[str, str, bool], None] | None = None
         for t in sorted(trains, key=lambda x: x.depart_s):
             runs = self.runs.get(t.id)
             if runs and runs[0].starts_inside:
-                k0 = t.profile.index_at(t.start_s_m)
-                sig = next((topo.edges[e].to_node for e in t.edges[k0:-1] if topo.edges[e].to_node in self.signals), None)
+                sig = topo.first_signal_ahead(t.edges, t.profile.starts_m, t.start_s_m)
                 if sig is not None:
                     self.inserting[t.id] = (t.depart_s, runs[0], sig)
+            elif runs:
+                self.departing.append((t.depart_s, t.id, runs[0]))
 
     def attach(self, hold: Callable[[str, str, bool], None], now_s: float) -> None:
         """Keep every train whose origin lies on a stretch out of the network until it is given the
@@ -181,7 +194,10 @@ class SingleTrackLocking:
         self._insertions(now_s)
 
     def _insertions(self, now_s: float) -> None:
-        """Trains due to enter the network on a stretch by ``now_s`` ask for it; each one given it may enter."""
+        """Trains due to enter the network on a stretch by ``now_s`` ask for it; each one given it may
+        enter.  Then so does a train due to depart in front of one that stands within reach of where
+        it would wait (the request :meth:`update` would make at its first step, after the supervision
+        of that step had let SUMO start it towards a signal it must not pass)."""
         for tid, (dep, run, sig) in list(self.inserting.items()):
             if dep > now_s + 1e-9:
                 break
@@ -195,6 +211,13 @@ class SingleTrackLocking:
                 self.on_change()
                 del self.inserting[tid]
                 self._hold(sig, tid, False)
+        while self.departing and self.departing[0][0] <= now_s + 1e-9:
+            _, tid, run = self.departing.pop(0)
+            if tid not in self.s_m and not self._far(tid, run, self.plans[tid].start_s_m, 0.0):
+                self.order.setdefault(run.stretch, []).append((tid, run))
+                if self._may_have(tid, run):
+                    self.given.add((tid, run.first))
+                self.on_change()
 
     # ------------------------------------------------------------------------------------------
     def _may_have(self, tid: str, run: Run) -> bool:
@@ -225,14 +248,12 @@ class SingleTrackLocking:
                 queue = self.order.setdefault(run.stretch, [])
                 asked = any(x == tid and r.first == run.first for x, r in queue)
                 if not asked:
-                    if run.starts_inside or s_m >= run.entry_s:  # already on it (departed there): holds it from now
+                    if run.starts_inside or s_m > run.entry_s + 1e-6:  # already on it (departed there): holds it from now
                         queue.insert(0, (tid, run))
                         self.given.add(key)
                         self.on_change()
                         continue
-                    d = self.hold_distance(tid, run, s_m)
-                    br, ahead = self.braking[tid], v * self.lock_time_s + a.position_error_m
-                    if d > br.stopping_bound(v, a.dead_time_s) + ahead or d > br.stopping_distance(s_m, v, a.dead_time_s) + ahead:
+                    if self._far(tid, run, s_m, v):
                         break  # not yet (nor any later stretch of its route)
                     queue.append((tid, run))
                     self.on_change()
@@ -248,7 +269,7 @@ class SingleTrackLocking:
             for tid, run in queue:
                 st = states.get(tid)
                 length = self.plans[tid].stock.length_m
-                clear = max(a.overlap_m, a.safety_margin_m) + a.position_error_m + (st[1] if st else 0.0) * (a.position_report_period_s + a.fixed_time_s) + 1.0
+                clear = clearance(a) + (st[1] if st else 0.0) * (a.position_report_period_s + a.fixed_time_s) + 1.0
                 if tid in self.gone or (st is not None and not run.ends_inside and st[0] - length > run.exit_s + clear):
                     self.done.add((tid, run.first))
                     self.given.discard((tid, run.first))
@@ -256,9 +277,17 @@ class SingleTrackLocking:
                 else:
                     keep.append((tid, run))
             self.order[k] = keep
-        if self._hold is not None and now_s is not None and self.inserting:
+        if self._hold is not None and now_s is not None and (self.inserting or self.departing):
             self._insertions(now_s)
         return new
+
+    def _far(self, tid: str, run: Run, s_m: float, v: float) -> bool:
+        """The train (front at ``s_m``, speed ``v``) is not yet within its stopping distance (+ the
+        lock time's running and the position error) of where it would wait for the stretch."""
+        a = self.model.assumptions
+        d = self.hold_distance(tid, run, s_m)
+        br, ahead = self.braking[tid], v * self.lock_time_s + a.position_error_m
+        return d > br.stopping_bound(v, a.dead_time_s) + ahead or d > br.stopping_distance(s_m, v, a.dead_time_s) + ahead
 
     def _constrain(self, tid: str, run: Run, new: list) -> None:
         """SUMO may set the route onto the stretch for ``tid`` only after each train it waits for has
@@ -305,7 +334,14 @@ class SingleTrackLocking:
 class OpposingTrains:
     """Counts trains that met head on on single track (module doc)."""
 
-    def __init__(self, topo: Topology, trains: list[PlannedTrain]):
+    def __init__(self, topo: Topology, trains: list[PlannedTrain], clearance_m: float = 0.0):
+        self.clearance_m = clearance_m
+        """How far past the point where a train leaves a stretch its rear must be before an opposing
+        train enters there (:func:`clearance`), m."""
+        self.too_close: list[tuple[str, str, float, tuple[str, float]]] = []
+        """This step's trains that entered a stretch too close to an opposing train: (train, the
+        other, the other's rear past where it left the stretch (m, negative: still on it), (section,
+        km) of the entering train's front)."""
         stretch_of = stretches(topo)
         self.plans = {t.id: t for t in trains}
         self.runs = {t.id: runs for t in trains if stretch_of and (runs := route_runs(topo, t, stretch_of))}
@@ -320,6 +356,27 @@ class OpposingTrains:
         self._prev: dict[str, float] = {}
         self.meeting: set[frozenset[str]] = set()
         """Pairs overlapping now (one collision per episode)."""
+
+    def _entering(self, positions: dict[str, float]) -> list[tuple[str, str, float, tuple[str, float]]]:
+        """Trains whose front has just passed the entry of a stretch while a train running the other
+        way had not cleared it (where that train left it at the point this one enters it, its rear
+        must be :attr:`clearance_m` past it; elsewhere, off the stretch)."""
+        out = []
+        for tid, s in positions.items():
+            prev = self._prev.get(tid)
+            if tid not in self.runs or prev is None or s != s:
+                continue
+            for run in self.runs[tid]:
+                if not prev <= run.entry_s < s:
+                    continue
+                for other, so in positions.items():
+                    for r in self.runs.get(other, ()) if other != tid else ():
+                        if not r.opposes(run) or so < r.entry_s:
+                            continue  # (not on it yet: the head-on check's)
+                        past = so - self.plans[other].stock.length_m - r.exit_s
+                        if past < (self.clearance_m if r.exit_node == run.entry_node else 0.0):
+                            out.append((tid, other, past, self.plans[tid].profile.km_at(s)))
+        return out
 
     def _pieces(self, tid: str, lo: float, hi: float) -> list[tuple[str, float, float, bool]]:
         """The single-track pieces a train covers between route positions lo and hi: (pair, from, to, along)."""
@@ -340,9 +397,11 @@ class OpposingTrains:
         return out
 
     def step(self, positions: dict[str, float]) -> list[tuple[str, str]]:
-        """This step's route positions of the running trains -> pairs that have just met head on."""
+        """This step's route positions of the running trains -> pairs that have just met head on
+        (and :attr:`too_close`)."""
         if not self.active:
             return []
+        self.too_close = self._entering(positions)
         occupied: dict[str, list[tuple[float, float, bool, str]]] = {}
         for tid, s in positions.items():
             if tid not in self.runs or s != s:
