@@ -34,7 +34,7 @@ from typing import Any, Iterator
 
 import pandas as pd
 
-from vcsumo.errors import VcsumoError
+from vcsumo.errors import InputError, VcsumoError
 
 
 _UNSAFE = re.compile(r"[/\\\x00-\x1f]")
@@ -102,6 +102,18 @@ def pid_alive(pid: int) -> bool:
 
 
 _PARTIAL = re.compile(r"^(?P<name>.+)\.partial-(?P<pid>\d+)$")
+
+
+def check_output_folder(folder: Path, option: str = "--out") -> None:
+    """Refuse a results folder SUMO cannot write into: a ':' in its path (after a Windows drive)
+    makes SUMO read an output file as ``host:port`` of a socket ("Given port number ... is not
+    numeric", reported as a failure of the line's network) — one line naming the option instead,
+    before anything is written."""
+    full = str(Path(folder).expanduser().absolute())
+    drive = Path(full).drive
+    if ":" in full[len(drive):]:
+        raise InputError(None, option, f"{folder}: a ':' in the results folder's path is read by SUMO as host:port of a socket; "
+                                       f"choose a folder whose path has no ':'")
 
 
 def remove_stale_partials(folder: Path, name: str | None = None, pids: set[int] | None = None) -> list[Path]:
@@ -266,6 +278,7 @@ class ResultsFolder:
         self.extra_meta: dict[str, Any] = {}
 
     def __enter__(self) -> "ResultsFolder":
+        check_output_folder(self.final)
         if self.final.exists() and any(self.final.iterdir()) and not self.overwrite:
             raise VcsumoError(f"{self.final}: output folder exists and is not empty (choose another --out or remove it)")
         self._made = []

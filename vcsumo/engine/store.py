@@ -40,7 +40,7 @@ from typing import Iterable
 import pandas as pd
 
 from vcsumo.errors import InputError, VcsumoError
-from vcsumo.results import write_csv
+from vcsumo.results import check_output_folder, write_csv
 
 LOCK_NAME = ".vcsumo.lock"
 OWNER_NAME = ".vcsumo.lock.owner"
@@ -168,6 +168,7 @@ class ResultStore:
         from filelock import FileLock, Timeout
 
         folder = self.folder
+        check_output_folder(folder, self.option)
         if folder.exists() and not folder.is_dir():
             raise InputError(None, self.option, f"{folder} is a file, not a folder")
         if not folder.exists():

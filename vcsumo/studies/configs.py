@@ -36,6 +36,12 @@ def _out_folder(v: str | None) -> str | None:
     name = Path(v).name if v.strip() else ""
     if not name or name in (".", "..") or "\x00" in v:
         raise ValueError(f"'{v}' is not a results folder: name a new folder, e.g. results/my_study")
+    from vcsumo.results import check_output_folder
+
+    try:
+        check_output_folder(Path(v))
+    except InputError as exc:  # (as the option's own problem, before anything runs)
+        raise ValueError(exc.message) from None
     return v
 
 
