@@ -6,6 +6,8 @@ counted 20.5 s of the 27.5 s a follower at 120 km/h spent inside its guaranteed 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -46,3 +48,28 @@ def test_red_signal_exposure_counts_the_guaranteed_braking_distance(line_factory
     nominal = float((v * v / (2 * setup.stock.service_brake_decel_mps2) >= d).sum() * 0.5)
     assert inside == pytest.approx(guaranteed) and inside > nominal + 5.0
     assert req == pytest.approx(float((v * v / (2 * np.maximum(d, 0.5))).max()))
+
+
+def test_the_junction_study_runs_under_the_set_it_names(line_factory, network_factory, tmp_path):
+    """``study junction --assumptions``: its runs are supervised and judged under the set named (until
+    2026-11-28 the junction study had no such option and always ran the shipped etcs_typical)."""
+    from vcsumo.signalling.assumptions import load_assumptions as load
+    from vcsumo.studies.junction.model import Case, simulate_pair
+
+    shipped = (Path(__file__).resolve().parent.parent / "vcsumo" / "data" / "assumptions" / "etcs_typical.yaml").read_text()
+    wide = tmp_path / "wide.yaml"
+    wide.write_text(shipped.replace("name: etcs_typical", "name: wide").replace("safety_margin_m: 50.0", "safety_margin_m: 150.0"))
+    line = line_factory("regional_graded")
+    setup = build_setup(line, network_factory("regional_graded"), load_rolling_stock(line.data.default_train), "hill", "down",
+                        assumptions=load(str(wide)))
+    assert setup.model.margin_m == pytest.approx(150.0 + 20.0)
+    run = simulate_pair(setup, Case("hill", "down", "branch", "mb"), 0.0, None, tmp_path / "solo", 0.5, roles=("branch",))
+    assert run.summary["assumptions"] == "wide"
+
+
+def test_an_unknown_set_for_the_junction_study_is_one_clear_error(tmp_path, capsys):
+    from vcsumo.cli.main import main
+
+    code = main(["study", "junction", "--line", "regional_graded", "--assumptions", "nosuchset", "--out", str(tmp_path / "j")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--assumptions" in err[0] and "nosuchset" in err[0] and not (tmp_path / "j").exists()

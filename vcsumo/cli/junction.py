@@ -50,11 +50,12 @@ def _floats(value: str, option: str) -> tuple[float, ...]:
 @click.option("--block-length-m", type=float, default=None, help="Override the line's block length, m")
 @click.option("--step-length", type=float, default=0.5, show_default=True, help="SUMO step for FBS/MB, s")
 @click.option("--vc-step-length", type=float, default=0.2, show_default=True, help="SUMO and controller step for VC, s")
+@click.option("--assumptions", default=None, help="Assumption set of the separation model: a shipped name or a .yaml path (default: etcs_typical)")
 @click.option("--seed", type=int, default=42, show_default=True, help="Random seed of SUMO and of the VC channels (message delays and losses); the same seed gives the same results")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (default: new folder under results/)")
 def junction_cmd(line_spec: str, junctions: str | None, train: str | None, controllers: str, first: str, variants: str, directions: str, offsets: str,
                  tolerance_s: float, resolution_s: float, window_m: float, approach_m: float, block_length_m: float | None, step_length: float,
-                 vc_step_length: float, seed: int, out: Path | None) -> None:
+                 vc_step_length: float, assumptions: str | None, seed: int, out: Path | None) -> None:
     """Convoy merge and split at speed: formation, junction throughput, delay and safety under FBS, MB and VC."""
     from vcsumo.line import load_line
     from vcsumo.sim.network import build_network
@@ -62,10 +63,12 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.studies.junction import ROLES, SIGNAL_VARIANTS, resolve_junctions, run_junction_study
     from vcsumo.control.registry import parse_controller
+    from vcsumo.signalling.assumptions import load_assumptions
 
     for name, v in (("--step-length", step_length), ("--vc-step-length", vc_step_length)):
         if v <= 0 or v > 2:
             raise VcsumoError(f"{name}: {v} s is outside (0, 2] s")
+    aset = load_assumptions(assumptions)
     line = load_line(line_spec)
     jids = resolve_junctions(line, junctions)
     name = train or line.data.default_train
@@ -85,7 +88,8 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
     out = out or default_out("junction", line.name)
     params = {"junctions": jids, "train": name, "controllers": ctrls, "first": list(firsts), "junction_signal": list(vars_), "directions": list(dirs),
               "offsets_s": list(offs), "tolerance_s": tolerance_s, "resolution_s": resolution_s, "window_m": window_m, "approach_m": approach_m,
-              "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length}
+              "block_length_m": block_length_m, "step_length_s": step_length, "vc_step_length_s": vc_step_length,
+              "assumptions": aset.record()}
     with ResultsFolder(out, inputs={"line": line.path}, seed=seed, params=params) as rf:
         with progress_bar() as prog:
             task = prog.add_task(f"junction {line.name}", total=1.0)
@@ -94,7 +98,7 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
                 prog.update(task, completed=k / n if n else 1.0, description=f"junction {line.name}: {desc}")
 
             df = run_junction_study(line, net, stock, rf.path, ctrls, jids, dirs, firsts, vars_, offs, tolerance_s, resolution_s, window_m, approach_m,
-                                    step_s=step_length, vc_step_s=vc_step_length, seed=seed, progress=upd)
+                                    step_s=step_length, vc_step_s=vc_step_length, seed=seed, progress=upd, assumptions=aset)
     view = df.copy()
     view["controller"] = [f"{c} ({v})" if c else "" for c, v in zip(view.controller, view.junction_signal)]
     view = view.rename(columns={"junction_throughput_trains_per_h": "trains_per_h", "merging_service_delay_s": "delay_s", "leader_service": "leader",

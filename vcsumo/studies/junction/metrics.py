@@ -10,7 +10,6 @@ import math
 import numpy as np
 import pandas as pd
 
-from vcsumo.signalling.assumptions import load_assumptions
 from vcsumo.signalling.separation import RouteBraking, SeparationModel
 from vcsumo.studies.junction.model import ROLES, Case, RunResult, Setup, link_of
 
@@ -59,7 +58,7 @@ def signal_exposure(setup: Setup, run: RunResult, follower: str, node: str | Non
     """(max deceleration needed to stop at the junction signal while it is red for the follower,
     time red while the signal lay inside its guaranteed service braking distance: the separation
     model's stopping distance on its route, after the dead time, on the grades, with the brake at
-    the low end of its box — ``model`` None: the shipped assumption set) — nan, 0 without data."""
+    the low end of its box — ``model`` None: the setup's) — nan, 0 without data."""
     if node is None or run.signals.empty or follower not in run.traces:
         return math.nan, 0.0
     li, _ = link_of(setup, follower, node, links)
@@ -75,7 +74,7 @@ def signal_exposure(setup: Setup, run: RunResult, follower: str, node: str | Non
     mask = is_red & (d > 0.0)
     if not mask.any():
         return 0.0, 0.0
-    model = model or SeparationModel(load_assumptions())
+    model = model or setup.model
     braking = RouteBraking(model, setup.stock, setup.profiles[follower], "service")
     req = v[mask] ** 2 / (2.0 * np.maximum(d[mask], 0.5))
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0

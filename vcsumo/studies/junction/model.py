@@ -21,7 +21,7 @@ from vcsumo.line import Branch, Line
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import speed_at, unhindered_run
-from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
 from vcsumo.signalling.separation import SeparationModel
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
@@ -123,6 +123,13 @@ class Setup:
     approach_m: float
     post_m: float
     window_m: float = 5000.0
+    assumptions: AssumptionSet | None = None
+    """The separation model's set the pair runs are supervised and judged with (None: the shipped default)."""
+
+    @property
+    def model(self) -> SeparationModel:
+        """The separation model under :attr:`assumptions`."""
+        return SeparationModel(self.assumptions or load_assumptions())
 
     @property
     def key(self) -> str:
@@ -144,7 +151,7 @@ def _node_index(topo, edges: list[str], node: str, side: str) -> int:
 
 
 def build_setup(line: Line, net: BuiltNetwork, stock: RollingStock, junction: str, direction: str, approach_m: float = 12000.0, post_m: float = 20000.0,
-                post_split_m: float = 10000.0) -> Setup:
+                post_split_m: float = 10000.0, assumptions: AssumptionSet | None = None) -> Setup:
     topo = net.topology
     br = line.branch(junction)
     if direction == merge_direction(br):
@@ -225,7 +232,7 @@ def build_setup(line: Line, net: BuiltNetwork, stock: RollingStock, junction: st
         points["S"] = dict(s_split)
     points["END"] = {r: profiles[r].length_m - 100.0 for r in ROLES}
     return Setup(line, net, stock, br, direction, merge, split, edges, profiles, start_s, start_v, s_merge, s_split, merge_node, split_node, points,
-                 approach_m, post_m)
+                 approach_m, post_m, assumptions=assumptions or load_assumptions())
 
 
 # -------------------------------------------------------------------------------------------
@@ -348,7 +355,7 @@ def simulate_pair(setup: Setup, case: Case, offset_s: float, solo_times: dict[st
     additional = write_additional(out / "network" / "junction.add.xml", [SignalRecording(n, signal_output(out, n)) for n in nodes])
     # the interlocking serves the merge in the planned order (the loop's approach locking, sim/interlocking.py)
     orders = {setup.merge_node: [t.id for t in trains]} if ordered and len(trains) == 2 and setup.merge_node else {}
-    assumptions = load_assumptions()
+    assumptions = setup.assumptions or load_assumptions()
     driver = policy = None
     if case.regime == "vc" and len(trains) == 2:
         policy = JunctionPolicy([trains], dt, SeparationModel(assumptions), link_handshake=link_warmup, speed_profile=speed_profile,

@@ -18,7 +18,7 @@ from vcsumo.line import Line
 from vcsumo.plots.junction import plot_junction_regimes, plot_junction_sweep
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.sim.network import BuiltNetwork
-from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.assumptions import AssumptionSet
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
 from vcsumo.control.registry import parse_controller
 from vcsumo.studies.junction.metrics import actual_order, formation, run_metrics, signal_rows, speed_at_trace, trajectory_rows, unhindered
@@ -116,7 +116,7 @@ def run_case(setup: Setup, case: Case, solo: dict[str, RunResult], out: Path, dt
     solo_times = {r: solo[r].passages[setup.key[0].upper()][r] - solo[r].departures[r] for r in ROLES}
     d0 = 0.0
     if setup.merge is None:  # both start at the same point: the follower must fit behind the leader
-        d0 = math.ceil(release_offset(setup, dt, SeparationModel(load_assumptions()), case.regime))
+        d0 = math.ceil(release_offset(setup, dt, setup.model, case.regime))
     cache: dict[float, tuple[dict, RunResult]] = {}
     count = [0]
 
@@ -290,9 +290,10 @@ def run_junction_study(
     directions: tuple[str, ...] = ("up", "down"), firsts: tuple[str, ...] = ("main", "branch"), variants: tuple[str, ...] = ("braking-curve",),
     offsets_s: tuple[float, ...] = DEFAULT_OFFSETS_S, tolerance_s: float = 2.0, resolution_s: float = 1.0, window_m: float = 5000.0,
     approach_m: float = 12000.0, post_m: float = 20000.0, step_s: float = 0.5, vc_step_s: float = 0.2, seed: int = 42,
-    link_warmup: bool = True, progress: Callable[[int, int, str], None] | None = None,
+    link_warmup: bool = True, progress: Callable[[int, int, str], None] | None = None, assumptions: AssumptionSet | None = None,
 ) -> pd.DataFrame:
-    """Every junction × direction × leader service × regime (× VC controller × variant).
+    """Every junction × direction × leader service × regime (× VC controller × variant), under the
+    separation model's set ``assumptions`` (None: the shipped default).
 
     Writes ``junction.csv``, ``junction_sweep.csv``, ``junction_trajectories.csv``,
     ``junction_signals.csv``, ``junction_<regime>.png`` and ``junction_sweep.png`` into ``out``.
@@ -327,7 +328,7 @@ def run_junction_study(
             progress(k, len(cases), f"{case.junction} {case.direction} {case.first}-first {case.label}")
         skey = (case.junction, case.direction)
         if skey not in setups:
-            setups[skey] = build_setup(line, net, stock, case.junction, case.direction, approach_m, post_m)
+            setups[skey] = build_setup(line, net, stock, case.junction, case.direction, approach_m, post_m, assumptions=assumptions)
             setups[skey].window_m = window_m
             links_cache[skey] = signal_links(setups[skey])
         setup = setups[skey]
