@@ -271,7 +271,7 @@ def simulate(scn: Scenario, out: Path, progress: Callable[[float, float], None] 
                         tr.mp_s[mp.label] = s_mp
                 state[vid] = tr
             arrived_now = sim.arrived()
-            for vid in state.keys() & set(arrived_now):
+            for vid in filter(state.__contains__, arrived_now):  # (only the trains that arrived, not every train ever departed)
                 state[vid].arrived_at = t
             active = [v for v in sim.running() if v in state]
             train_steps += len(active)
