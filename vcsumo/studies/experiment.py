@@ -88,6 +88,16 @@ class RunResult:
                 out.append(f"{r.train} {int(r.value)} episode{'s' if r.value != 1 else ''}, margin {self.value('min_margin_m', r.train):.1f} m")
         return out
 
+    def missed_emergency_brake(self) -> str | None:
+        """Where the file's leader emergency brake was to come, if it never came within the run (the
+        leader stopped, or the run ended, before it), in words; None when it came or the file has none."""
+        drv = self.setup.leader_driver
+        if not isinstance(drv, LeaderEvents) or drv.braking_since_s is not None:
+            return None
+        where = ([f"at {drv.at_m:.0f} m"] if math.isfinite(drv.at_m) else []) + ([f"at {drv.at_s:.0f} s"] if math.isfinite(drv.at_s) else [])
+        end = self.arrays["pos"][-1, 0] if len(self.arrays["t"]) else math.nan
+        return f"the leader's emergency brake ({' or '.join(where)}) did not come within the run (the leader ended at {end:.0f} m, {self.arrays['t'][-1]:.0f} s)"
+
     def overspeeding(self) -> list[str]:
         """The trains above the permitted speed by more than the tolerance, with their largest excess."""
         m = self.measurements

@@ -34,6 +34,7 @@ from vcsumo.plant import PlantState
 from vcsumo.rolling_stock import Interval, RollingStock, UncertaintyBox, load_rolling_stock
 from vcsumo.signalling.separation import RelativeBraking
 from vcsumo.route_profile import RouteProfile
+from vcsumo.running_time import stall_problem
 from vcsumo.sim.offline import OfflineTrain, steady_force
 from vcsumo.studies.experiment_leaders import LeaderEvents, Schedule, SpeedMPCLeader, SpeedTracker, felez_leader
 from vcsumo.studies.experiment_model import ChannelSpec, Experiment, StockSpec, TrackSpec
@@ -368,6 +369,12 @@ def build_setup(exp: Experiment, seed: int, base_dir: Path | None = None, path=N
             raise InputError(path, f"trains[{k}]", f"starts at {s:.1f} m, outside the track (its rear must be on it: {stocks[k].length_m:.0f}–{profile.length_m:.0f} m)")
         if k and s > positions[k - 1] - stocks[k - 1].length_m:
             raise InputError(path, f"trains[{k}]", f"starts at {s:.1f} m, overlapping the train ahead (its rear at {positions[k - 1] - stocks[k - 1].length_m:.1f} m)")
+    for k, t in enumerate(exp.trains):  # a train that cannot start on a grade it can reach would stand there (as a timetable's, refused)
+        reach = min(profile.length_m, positions[k] + max(plants[k].max_speed_ms, t.speed_mps) * exp.duration_s)
+        place = (lambda s: f"{s:.0f} m of the straight") if exp.track.straight is not None else None
+        if stall := stall_problem(plants[k], profile, positions[k], reach, place):
+            plant = f" (its {t.plant} plant, seed {seed})" if t.plant != "nominal" else ""
+            raise InputError(path, f"trains[{k}].stock", f"infeasible: train {t.id}{plant} {stall} (within the run it can reach {reach:.0f} m of the track)")
     stop_at = exp.leader.felez.stop_at_m if exp.leader.driver == "felez_mpc" and exp.leader.felez is not None else None
     if stop_at is not None and not positions[0] < stop_at <= profile.length_m:
         raise InputError(path, "leader.felez.stop_at_m", f"{stop_at:g} m is not ahead of the leader on the track (the leader starts at {positions[0]:.1f} m, "
