@@ -200,6 +200,7 @@ def plan_runs(spec: str | Path, variants: list[str] | None = None, seeds: list[i
     from vcsumo.errors import InputError
 
     path, _, runs = load_experiment(spec)
+    variant_index = {n: k - 1 for k, (n, _) in enumerate(runs) if k}
     if variants:
         known = [n for n, _ in runs]
         bad = [v for v in variants if v not in known]
@@ -207,8 +208,14 @@ def plan_runs(spec: str | Path, variants: list[str] | None = None, seeds: list[i
             raise InputError(None, "--variants", f"unknown run {bad[0]!r} (the file has: {', '.join(known)})")
         runs = [(n, e) for n, e in runs if n in variants]
     if check:
-        for _, exp in runs:
-            build_setup(exp, (seeds or exp.seeds)[0], path.parent, path)
+        for name, exp in runs:
+            try:
+                build_setup(exp, (seeds or exp.seeds)[0], path.parent, path)
+            except InputError as exc:  # a variant's problem is the variant's, not the file's own run's
+                if name not in variant_index:
+                    raise
+                where = f"variants[{variant_index[name]}] ({name})"
+                raise InputError(path, f"{where}: {exc.field}" if exc.field else where, exc.message) from None
     return path, [(n, e, s) for n, e in runs for s in (seeds or e.seeds)]
 
 
