@@ -63,3 +63,36 @@ def test_a_climb_the_train_can_start_on_runs_and_an_event_never_reached_is_said(
     _, code, out = run(in_tmp, capsys, 10.0, duration=100.0, event=11000.0)
     assert code == 0, out.err
     assert "the leader's emergency brake (at 11000 m) did not come within the run" in out.out, out.out
+
+
+BRAKE = """
+name: weak_brake
+step_s: 0.2
+duration_s: 300.0
+seeds: [1]
+record_every: 10
+track:
+  straight: {length_m: 12000.0, speed_limit_mps: 20.0, grades: [{from_m: 3000.0, permille: -30.0}]}
+trains:
+  - {id: L, stock: regional_emu160, position_m: 3000.0, speed_mps: 16.0}
+  - {id: F, stock: {base: regional_emu160, mass_kg: 800000.0, service_brake_decel_mps2: BRAKE, uncertainty_pct: 5.0}, gap_m: 300.0, speed_mps: 16.0, controller: cbc}
+leader:
+  driver: speed_tracker
+  schedule: [[0.0, 16.0]]
+  events: [{action: emergency_brake, at_m: 4000.0}]
+"""
+
+
+@pytest.mark.parametrize("brake, refused", [(0.28, True), (0.45, False)])
+def test_a_follower_whose_guaranteed_brake_cannot_hold_it_on_a_descent_is_refused(in_tmp, capsys, brake, refused):
+    # on 30 ‰ gravity pulls 0.294 m/s²; 0.28 m/s² − 5 % (the box) − 10 % (etcs_typical) is 0.25: no
+    # guaranteed braking. Before, the run went on and was NOT HEALTHY: the follower 8.7 m inside the
+    # safe separation (the timetable refuses such a train: 'infeasible: … no guaranteed braking').
+    exp = write(in_tmp / "weak.yaml", BRAKE.replace("BRAKE", str(brake)))
+    code = main(["experiment", str(exp), "--out", "e", "--no-plots"])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    if refused:
+        assert code == 2 and not (in_tmp / "e").exists()
+        assert len(err) == 1 and err[0].startswith(f"error: {exp}: trains[1].stock: infeasible: train F") and "-30.0 ‰ descent" in err[0], err
+    else:
+        assert code == 0, err

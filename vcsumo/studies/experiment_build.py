@@ -28,13 +28,15 @@ from vcsumo.control.proxies import BoxBounds, sample_params
 from vcsumo.control.registry import CONTROLLERS, SUPERVISORS, StackContext, build_follower_stack, controller_spec
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import TrainParams
-from vcsumo.errors import InputError
+from vcsumo.errors import InfeasibleBraking, InputError
 from vcsumo.line import load_line
 from vcsumo.plant import PlantState
 from vcsumo.rolling_stock import Interval, RollingStock, UncertaintyBox, load_rolling_stock
 from vcsumo.signalling.separation import RelativeBraking
 from vcsumo.route_profile import RouteProfile
 from vcsumo.running_time import stall_problem
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.train_braking import guaranteed_decel
 from vcsumo.sim.offline import OfflineTrain, steady_force
 from vcsumo.studies.experiment_leaders import LeaderEvents, Schedule, SpeedMPCLeader, SpeedTracker, felez_leader
 from vcsumo.studies.experiment_model import ChannelSpec, Experiment, StockSpec, TrackSpec
@@ -395,6 +397,14 @@ def build_setup(exp: Experiment, seed: int, base_dir: Path | None = None, path=N
         if stall := stall_problem(weakest, profile, positions[k], reach, place):
             plant = f" (the weakest {t.plant} plant of its uncertainty box)" if t.plant != "nominal" else ""
             raise InputError(path, f"trains[{k}].stock", f"infeasible: train {t.id}{plant} {stall} (within the run it can reach {reach:.0f} m of the track)")
+        if k:  # a follower's separation is judged on its guaranteed brake (the run-health rule): it must hold it on every descent it can reach
+            g_low = min(profile.gradient_range(positions[k] - stocks[k].length_m, reach)[0], 0.0)
+            set_ = load_assumptions()
+            try:
+                guaranteed_decel(stocks[k], set_, "service", stocks[k].max_speed_kmh / 3.6, g_low)
+            except InfeasibleBraking as exc:
+                raise InputError(path, f"trains[{k}].stock", f"infeasible: train {t.id}: {exc} within its reach (to {reach:.0f} m) under the assumption set "
+                                                            f"'{set_.name}'") from None
     stop_at = exp.leader.felez.stop_at_m if exp.leader.driver == "felez_mpc" and exp.leader.felez is not None else None
     if stop_at is not None and not positions[0] < stop_at <= profile.length_m:
         raise InputError(path, "leader.felez.stop_at_m", f"{stop_at:g} m is not ahead of the leader on the track (the leader starts at {positions[0]:.1f} m, "
