@@ -109,12 +109,15 @@ OVERSPEED_TOLERANCE_KMH = 2.0
 """A train counts as above its permitted speed beyond this, km/h (the run-health monitor's ``speed_tolerance_kmh``)."""
 
 
-def overspeed_rows(profile: RouteProfile, pos: np.ndarray, speed: np.ndarray, ids: list[str], lengths_m: list[float]) -> list[tuple[str, str, str, float, str]]:
-    """Per train, the largest excess over the track's permitted speed (the lowest limit under the whole
-    train, as SUMO and the run-health monitor read it), km/h, and the steps above it + the tolerance."""
+def overspeed_rows(profile: RouteProfile, pos: np.ndarray, speed: np.ndarray, ids: list[str], lengths_m: list[float],
+                   max_speeds_mps: list[float] | None = None) -> list[tuple[str, str, str, float, str]]:
+    """Per train, the largest excess over its permitted speed — the track's (the lowest limit under the
+    whole train, as SUMO and the run-health monitor read it) and its own maximum speed (``max_speeds_mps``,
+    SUMO's cap on every train; the offline plant has none) —, km/h, and the steps above it + the tolerance."""
     rows = []
     for i, tid in enumerate(ids):
-        limit = np.array([profile.speed_limit_train(float(x), lengths_m[i]) for x in pos[:, i]])
+        own = max_speeds_mps[i] if max_speeds_mps is not None else np.inf
+        limit = np.array([min(profile.speed_limit_train(float(x), lengths_m[i]), own) for x in pos[:, i]])
         excess = (speed[:, i] - limit) * 3.6
         rows.append((tid, "", "overspeed_max_kmh", float(max(excess.max(), 0.0)), "km/h"))
         rows.append((tid, "", "overspeed_steps", float(np.sum(excess > OVERSPEED_TOLERANCE_KMH)), "-"))
@@ -178,7 +181,7 @@ def run_experiment(exp: Experiment, seed: int, base_dir: Path | None = None, pat
     arr = rec.arrays()
     brake = setup.leader_driver.braking_since_s if isinstance(setup.leader_driver, LeaderEvents) else None
     rows = measure(exp, arr, ids, true_lengths, setup.followers, timers, brake, rec.packets, channel if exp.channel is not None else None)
-    rows += overspeed_rows(setup.profile, arr["pos"], arr["speed"], ids, true_lengths)
+    rows += overspeed_rows(setup.profile, arr["pos"], arr["speed"], ids, true_lengths, [s.max_speed_kmh / 3.6 for s in setup.stocks])
     rows += separation_rows(setup.profile, arr, setup.stocks, SeparationModel(load_assumptions()), exp.step_s, ids)
     rows += [("", "", "steps", float(len(arr["t"])), "-"), ("", "", "end_time_s", run.end_time_s, "s"), ("", "", "wall_time_s", wall, "s"),
              ("", "", "cpu_time_s", cpu, "s")]
