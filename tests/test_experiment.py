@@ -135,7 +135,7 @@ def test_paths_are_relative_to_the_file(tmp_path, monkeypatch):
     write(folder / "stock" / "my_train.yaml", stock)
     write(folder / "params" / "my_cbc.yaml", (DATA / "controllers" / "cbc.yaml").read_text())
     text = TINY.replace("stock: terlizzi2024_follower", "stock: stock/my_train.yaml").replace("controller: cbc}", "controller: cbc, params: params/my_cbc.yaml}")
-    _tiny(folder, text.replace("duration_s: 160.0", "duration_s: 10.0"))
+    _tiny(folder, text.replace("duration_s: 160.0", "duration_s: 20.0"))
     monkeypatch.chdir(tmp_path)
     path, _, runs = load_experiment("exp/tiny.yaml")  # a relative path: the file's folder is relative too
     setup = build_setup(runs[0][1], 1, path.parent, path)

@@ -189,12 +189,13 @@ def steepest_start(p: TrainParams, profile: RouteProfile, s0: float, s1: float) 
     return worst
 
 
-def stall_problem(p: TrainParams, profile: RouteProfile, s0: float, s1: float) -> str | None:
+def stall_problem(p: TrainParams, profile: RouteProfile, s0: float, s1: float, place=None) -> str | None:
     """Why the train cannot run its front from s0 to s1 — it cannot start on a grade under it (it
-    would stall there: :func:`steepest_start`) — as words, or None when it can."""
+    would stall there: :func:`steepest_start`) — as words, or None when it can. ``place``: the
+    words for a front position (default: the profile's section and km)."""
     s, g, a = steepest_start(p, profile, s0, s1)
     if a > 0.0:
         return None
-    section, km = profile.km_at(s)
+    where = place(s) if place is not None else "{} km {:.3f}".format(*profile.km_at(s))
     need_kn = (p.max_traction_n - a * p.mass_kg * p.rotating_mass_factor) / 1000.0
-    return f"cannot start on the {1000 * g:.1f} ‰ grade under it at {section} km {km:.3f}: it needs {need_kn:.0f} kN, its tractive effort is {p.max_traction_n / 1000.0:.0f} kN"
+    return f"cannot start on the {1000 * g:.1f} ‰ grade under it at {where}: it needs {need_kn:.0f} kN, its tractive effort is {p.max_traction_n / 1000.0:.0f} kN"

@@ -81,6 +81,9 @@ def experiment_cmd(file: str, variants: str | None, seeds: str | None, no_plots:
         if unguarded:
             out_console.print(f"{r.run}: below the safe separation without the separation guard (guard: false, not judged): {', '.join(unguarded)}",
                               markup=False, highlight=False)
+        missed = r.missed_emergency_brake()
+        if missed:
+            out_console.print(f"{r.run}: {missed}", markup=False, highlight=False)
         stop = r.measurements[r.measurements["quantity"] == "leader_stop_time_s"]["value"]
         if len(stop) and stop.isna().all():
             out_console.print(f"{r.run}: the leader did not stop within the run: no stop measured", markup=False, highlight=False)

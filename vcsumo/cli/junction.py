@@ -77,7 +77,7 @@ def junction_cmd(line_spec: str, junctions: str | None, train: str | None, contr
     stock = load_rolling_stock(name)
     ctrls = _csv(controllers, "--controllers")
     for c in ctrls:
-        parse_controller(c)
+        parse_controller(c, "--controllers")
     dirs = tuple(_csv(directions, "--directions"))
     if not dirs or any(d not in ("up", "down") for d in dirs):
         raise InputError(None, "--directions", f"'{directions}' (choose up, down)")

@@ -76,9 +76,12 @@ def tradeoff_cmd(line_spec: str, train: str | None, convoy_sizes: str, delays: s
     except ValidationError as exc:
         err = exc.errors()[0]
         field = str(err["loc"][0])
-        where = f" ({', '.join(str(x) for x in err['loc'][1:])})" if len(err["loc"]) > 1 else ""
         msg = " ".join(str(err["msg"]).split()).removeprefix("Value error, ")
-        raise InputError(None, OPTION_OF.get(field, "--" + field.replace("_", "-")), msg + where) from None
+        if len(err["loc"]) > 1 and isinstance(err["loc"][1], int):  # an item of a list option: its place and value, as the sweeps' own checks
+            msg = f"value {err['loc'][1] + 1} ({err.get('input')}): {msg}"
+        elif len(err["loc"]) > 1:
+            msg += f" ({', '.join(str(x) for x in err['loc'][1:])})"
+        raise InputError(None, OPTION_OF.get(field, "--" + field.replace("_", "-")), msg) from None
     from vcsumo.line import load_line
 
     out = out or default_out("tradeoff", load_line(cfg.line).name)

@@ -94,7 +94,8 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
     own position as soon as the train ahead has cleared it by the standstill gap (its unhindered
     start, with ``model``'s guaranteed braking; SUMO would otherwise insert it a few metres behind).
     A follower that leaves later than its timetable says this way (timetabled before the train ahead
-    of it) is warned of, naming both times.
+    of it, or after it where the two do not stand on the departure track together) is warned of,
+    naming both times and the reason.
     """
     for members in convoys:
         for k in range(1, len(members)):
@@ -104,9 +105,14 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
             timetabled = ego.depart_s
             _depart_with(ego, ahead, standstill_gap_m.get(ego.id, 10.0), model)
             if ego.depart_s > timetabled + 0.5:
-                warnings.warn(f"convoy follower {ego.id} is timetabled at {format_clock(timetabled)}, before {ahead.id} ahead of it in the convoy "
-                              f"({format_clock(ahead.depart_s)}): it leaves behind it at {format_clock(ego.depart_s)} "
-                              f"({ego.depart_s - timetabled:.0f} s after its timetable; summary.csv's scheduled departure is that time)", stacklevel=2)
+                late = f"({ego.depart_s - timetabled:.0f} s after its timetable; summary.csv's scheduled departure is that time)"
+                if timetabled < ahead.depart_s:
+                    warnings.warn(f"convoy follower {ego.id} is timetabled at {format_clock(timetabled)}, before {ahead.id} ahead of it in the convoy "
+                                  f"({format_clock(ahead.depart_s)}): it leaves behind it at {format_clock(ego.depart_s)} {late}", stacklevel=2)
+                else:  # after it, but the convoy does not stand on the departure track: it waits until the train ahead has cleared it
+                    warnings.warn(f"convoy follower {ego.id} is timetabled at {format_clock(timetabled)}, after {ahead.id} ahead of it in the convoy "
+                                  f"({format_clock(ahead.depart_s)}), but cannot stand behind it on its departure track: it leaves once {ahead.id} has "
+                                  f"cleared it by the standstill gap, at {format_clock(ego.depart_s)} {late}", stacklevel=2)
 
 
 def _depart_with(ego: PlannedTrain, ahead: PlannedTrain, gap: float, model: SeparationModel | None) -> None:

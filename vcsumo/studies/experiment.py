@@ -88,6 +88,16 @@ class RunResult:
                 out.append(f"{r.train} {int(r.value)} episode{'s' if r.value != 1 else ''}, margin {self.value('min_margin_m', r.train):.1f} m")
         return out
 
+    def missed_emergency_brake(self) -> str | None:
+        """Where the file's leader emergency brake was to come, if it never came within the run (the
+        leader stopped, or the run ended, before it), in words; None when it came or the file has none."""
+        drv = self.setup.leader_driver
+        if not isinstance(drv, LeaderEvents) or drv.braking_since_s is not None:
+            return None
+        where = ([f"at {drv.at_m:.0f} m"] if math.isfinite(drv.at_m) else []) + ([f"at {drv.at_s:.0f} s"] if math.isfinite(drv.at_s) else [])
+        end = self.arrays["pos"][-1, 0] if len(self.arrays["t"]) else math.nan
+        return f"the leader's emergency brake ({' or '.join(where)}) did not come within the run (the leader ended at {end:.0f} m, {self.arrays['t'][-1]:.0f} s)"
+
     def overspeeding(self) -> list[str]:
         """The trains above the permitted speed by more than the tolerance, with their largest excess."""
         m = self.measurements
@@ -99,12 +109,15 @@ OVERSPEED_TOLERANCE_KMH = 2.0
 """A train counts as above its permitted speed beyond this, km/h (the run-health monitor's ``speed_tolerance_kmh``)."""
 
 
-def overspeed_rows(profile: RouteProfile, pos: np.ndarray, speed: np.ndarray, ids: list[str], lengths_m: list[float]) -> list[tuple[str, str, str, float, str]]:
-    """Per train, the largest excess over the track's permitted speed (the lowest limit under the whole
-    train, as SUMO and the run-health monitor read it), km/h, and the steps above it + the tolerance."""
+def overspeed_rows(profile: RouteProfile, pos: np.ndarray, speed: np.ndarray, ids: list[str], lengths_m: list[float],
+                   max_speeds_mps: list[float] | None = None) -> list[tuple[str, str, str, float, str]]:
+    """Per train, the largest excess over its permitted speed — the track's (the lowest limit under the
+    whole train, as SUMO and the run-health monitor read it) and its own maximum speed (``max_speeds_mps``,
+    SUMO's cap on every train; the offline plant has none) —, km/h, and the steps above it + the tolerance."""
     rows = []
     for i, tid in enumerate(ids):
-        limit = np.array([profile.speed_limit_train(float(x), lengths_m[i]) for x in pos[:, i]])
+        own = max_speeds_mps[i] if max_speeds_mps is not None else np.inf
+        limit = np.array([min(profile.speed_limit_train(float(x), lengths_m[i]), own) for x in pos[:, i]])
         excess = (speed[:, i] - limit) * 3.6
         rows.append((tid, "", "overspeed_max_kmh", float(max(excess.max(), 0.0)), "km/h"))
         rows.append((tid, "", "overspeed_steps", float(np.sum(excess > OVERSPEED_TOLERANCE_KMH)), "-"))
@@ -168,7 +181,7 @@ def run_experiment(exp: Experiment, seed: int, base_dir: Path | None = None, pat
     arr = rec.arrays()
     brake = setup.leader_driver.braking_since_s if isinstance(setup.leader_driver, LeaderEvents) else None
     rows = measure(exp, arr, ids, true_lengths, setup.followers, timers, brake, rec.packets, channel if exp.channel is not None else None)
-    rows += overspeed_rows(setup.profile, arr["pos"], arr["speed"], ids, true_lengths)
+    rows += overspeed_rows(setup.profile, arr["pos"], arr["speed"], ids, true_lengths, [s.max_speed_kmh / 3.6 for s in setup.stocks])
     rows += separation_rows(setup.profile, arr, setup.stocks, SeparationModel(load_assumptions()), exp.step_s, ids)
     rows += [("", "", "steps", float(len(arr["t"])), "-"), ("", "", "end_time_s", run.end_time_s, "s"), ("", "", "wall_time_s", wall, "s"),
              ("", "", "cpu_time_s", cpu, "s")]
@@ -190,6 +203,7 @@ def plan_runs(spec: str | Path, variants: list[str] | None = None, seeds: list[i
     from vcsumo.errors import InputError
 
     path, _, runs = load_experiment(spec)
+    variant_index = {n: k - 1 for k, (n, _) in enumerate(runs) if k}
     if variants:
         known = [n for n, _ in runs]
         bad = [v for v in variants if v not in known]
@@ -197,8 +211,14 @@ def plan_runs(spec: str | Path, variants: list[str] | None = None, seeds: list[i
             raise InputError(None, "--variants", f"unknown run {bad[0]!r} (the file has: {', '.join(known)})")
         runs = [(n, e) for n, e in runs if n in variants]
     if check:
-        for _, exp in runs:
-            build_setup(exp, (seeds or exp.seeds)[0], path.parent, path)
+        for name, exp in runs:
+            try:
+                build_setup(exp, (seeds or exp.seeds)[0], path.parent, path)
+            except InputError as exc:  # a variant's problem is the variant's, not the file's own run's
+                if name not in variant_index:
+                    raise
+                where = f"variants[{variant_index[name]}] ({name})"
+                raise InputError(path, f"{where}: {exc.field}" if exc.field else where, exc.message) from None
     return path, [(n, e, s) for n, e in runs for s in (seeds or e.seeds)]
 
 

@@ -28,12 +28,15 @@ from vcsumo.control.proxies import BoxBounds, sample_params
 from vcsumo.control.registry import CONTROLLERS, SUPERVISORS, StackContext, build_follower_stack, controller_spec
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import TrainParams
-from vcsumo.errors import InputError
+from vcsumo.errors import InfeasibleBraking, InputError
 from vcsumo.line import load_line
 from vcsumo.plant import PlantState
 from vcsumo.rolling_stock import Interval, RollingStock, UncertaintyBox, load_rolling_stock
 from vcsumo.signalling.separation import RelativeBraking
 from vcsumo.route_profile import RouteProfile
+from vcsumo.running_time import stall_problem
+from vcsumo.signalling.assumptions import load_assumptions
+from vcsumo.signalling.train_braking import guaranteed_decel
 from vcsumo.sim.offline import OfflineTrain, steady_force
 from vcsumo.studies.experiment_leaders import LeaderEvents, Schedule, SpeedMPCLeader, SpeedTracker, felez_leader
 from vcsumo.studies.experiment_model import ChannelSpec, Experiment, StockSpec, TrackSpec
@@ -151,6 +154,18 @@ def build_stock(spec: str | StockSpec, base_dir: Path | None, field_name: str, p
         raise InputError(path, f"{field_name}.{err.field}" if err.field else field_name, err.message) from None
 
 
+def hardest_start(stock: RollingStock, kind: str) -> TrainParams:
+    """The plant of this kind that starts hardest on a grade: the nominal train, or the corner of its
+    uncertainty box with the least traction per mass and the most rolling resistance per mass (any
+    seed may draw a plant near it)."""
+    nom = stock.params()
+    if kind == "nominal":
+        return nom
+    box = stock.uncertainty_box()
+    m = box.mass_kg.low
+    return nom.with_(mass_kg=m, davis_a_n=box.davis_a_n.high, max_traction_n=m * box.max_accel_mps2.low)
+
+
 def plant_params(stock: RollingStock, kind: str, rng: np.random.Generator) -> TrainParams:
     """The plant's true parameters: nominal, drawn in the box, or at a corner of it."""
     if kind == "nominal":
@@ -229,6 +244,10 @@ def build_follower(exp: Experiment, k: int, stocks: list[RollingStock], profile:
         nominal = _resolve(spec, entry.default_params or "", f"{fld}.params" if tr.params else f"{fld}.controller", base_dir, path)
         files.append(nominal)
     sup: Any = None
+    if cs.supervisor is None and cs.family != "cruise":
+        for key in ("supervisor_params", "supervisor_overrides"):
+            if getattr(tr, key):
+                raise InputError(path, f"{fld}.{key}", f"controller '{tr.controller}' has no supervisor to take it (cbf-{cs.family} has the CBF)")
     if cs.supervisor is not None or cs.family == "cruise":
         sup_name = cs.supervisor or "cbf"
         if tr.supervisor_overrides:
@@ -334,6 +353,9 @@ def leader_driver(exp: Experiment, stock: RollingStock, profile: RouteProfile, b
             raise InputError(path, exc.field, exc.message) from None
     at_s = [e.at_s for e in spec.events if e.action == "emergency_brake" and e.at_s is not None]
     at_m = [e.at_m for e in spec.events if e.action == "emergency_brake" and e.at_m is not None]
+    for k, e in enumerate(spec.events):
+        if e.at_m is not None and e.at_m > profile.length_m:
+            raise InputError(path, f"leader.events[{k}].at_m", f"{e.at_m:g} m is beyond the end of the track ({profile.length_m:.0f} m)")
     at_m += [_s_at_km(profile, e.at_km, f"leader.events[{k}].at_km", path) for k, e in enumerate(spec.events) if e.action == "emergency_brake" and e.at_km is not None]
     if at_s or at_m:
         driver = LeaderEvents(driver, at_s, at_m, plan)
@@ -368,6 +390,21 @@ def build_setup(exp: Experiment, seed: int, base_dir: Path | None = None, path=N
             raise InputError(path, f"trains[{k}]", f"starts at {s:.1f} m, outside the track (its rear must be on it: {stocks[k].length_m:.0f}–{profile.length_m:.0f} m)")
         if k and s > positions[k - 1] - stocks[k - 1].length_m:
             raise InputError(path, f"trains[{k}]", f"starts at {s:.1f} m, overlapping the train ahead (its rear at {positions[k - 1] - stocks[k - 1].length_m:.1f} m)")
+    for k, t in enumerate(exp.trains):  # a train that cannot start on a grade it can reach would stand there (as a timetable's, refused)
+        weakest = plants[0] if k == 0 and lead_plant is not None else hardest_start(stocks[k], t.plant)
+        reach = min(profile.length_m, positions[k] + max(weakest.max_speed_ms, t.speed_mps) * exp.duration_s)
+        place = (lambda s: f"{s:.0f} m of the straight") if exp.track.straight is not None else None
+        if stall := stall_problem(weakest, profile, positions[k], reach, place):
+            plant = f" (the weakest {t.plant} plant of its uncertainty box)" if t.plant != "nominal" else ""
+            raise InputError(path, f"trains[{k}].stock", f"infeasible: train {t.id}{plant} {stall} (within the run it can reach {reach:.0f} m of the track)")
+        if k:  # a follower's separation is judged on its guaranteed brake (the run-health rule): it must hold it on every descent it can reach
+            g_low = min(profile.gradient_range(positions[k] - stocks[k].length_m, reach)[0], 0.0)
+            set_ = load_assumptions()
+            try:
+                guaranteed_decel(stocks[k], set_, "service", stocks[k].max_speed_kmh / 3.6, g_low)
+            except InfeasibleBraking as exc:
+                raise InputError(path, f"trains[{k}].stock", f"infeasible: train {t.id}: {exc} within its reach (to {reach:.0f} m) under the assumption set "
+                                                            f"'{set_.name}'") from None
     stop_at = exp.leader.felez.stop_at_m if exp.leader.driver == "felez_mpc" and exp.leader.felez is not None else None
     if stop_at is not None and not positions[0] < stop_at <= profile.length_m:
         raise InputError(path, "leader.felez.stop_at_m", f"{stop_at:g} m is not ahead of the leader on the track (the leader starts at {positions[0]:.1f} m, "
@@ -388,5 +425,5 @@ def build_setup(exp: Experiment, seed: int, base_dir: Path | None = None, path=N
     return Setup(profile, stocks, trains, followers, channel_config(exp.channel, exp.step_s, seed), driver, files)
 
 
-__all__ = ["PARAM_MODELS", "SUPERVISOR_MODELS", "cut_profile", "build_profile", "build_stock", "plant_params", "FollowerSetup", "build_follower",
+__all__ = ["PARAM_MODELS", "SUPERVISOR_MODELS", "cut_profile", "build_profile", "build_stock", "hardest_start", "plant_params", "FollowerSetup", "build_follower",
            "coupled_gap_m", "channel_config", "Setup", "leader_driver", "build_setup"]

@@ -85,6 +85,13 @@ class StraightTrack(StrictModel):
     speed_limit_mps: float = Field(ge=1, le=170, description="Line speed limit, m/s (1–170)")
     grades: list[GradePoint] = Field(default_factory=list, description="Gradient profile (level where none is given)")
 
+    @model_validator(mode="after")
+    def _grades_on_track(self) -> "StraightTrack":
+        for k, g in enumerate(self.grades):
+            if g.from_m >= self.length_m:
+                raise FieldProblem(f"grades.{k}.from_m", f"{g.from_m:g} m is beyond the end of the track ({self.length_m:g} m)")
+        return self
+
 
 class LineTrack(StrictModel):
     """A shipped (or own) line's main track over a km range."""
@@ -217,6 +224,12 @@ class GapWindow(StrictModel):
     tolerance_mps: float = Field(default=0.5, gt=0, le=20, description="Speed tolerance, m/s")
     min_hold_s: float = Field(default=0.0, ge=0, description="Only stretches at that speed lasting at least this long, s")
 
+    @model_validator(mode="after")
+    def _ordered(self) -> "GapWindow":
+        if self.to_s is not None and self.to_s <= self.from_s:
+            raise FieldProblem("to_s", f"{self.to_s:g} s must be after from_s ({self.from_s:g} s)")
+        return self
+
 
 class StopSpec(StrictModel):
     """Measure the leader's stop: brake onset, stop delays, gaps at the onset and at rest."""
@@ -280,6 +293,12 @@ class Experiment(StrictModel):
                 raise FieldProblem(f"trains.{k}.controller", "a follower needs a controller stack")
             if t.position_m is None and t.gap_m is None:
                 raise FieldProblem(f"trains.{k}", "give position_m or gap_m")
+        for k, w in enumerate(self.measurements.gap_windows):
+            if w.from_s >= self.duration_s:
+                raise FieldProblem(f"measurements.gap_windows.{k}.from_s", f"{w.from_s:g} s is not within the run (duration_s {self.duration_s:g} s)")
+        for k, e in enumerate(self.leader.events):
+            if e.at_s is not None and e.at_s >= self.duration_s:
+                raise FieldProblem(f"leader.events.{k}.at_s", f"{e.at_s:g} s is not within the run (duration_s {self.duration_s:g} s)")
         names = [v.name for v in self.variants]
         for k, n in enumerate(names):
             if n in names[:k] or n == self.label:

@@ -27,6 +27,7 @@ Writes ``headway.csv`` (one row per direction × regime × train × measuring po
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
@@ -149,10 +150,13 @@ def run_headway_case(
     for k in points_km:
         try:
             x = prof.s_of("main", k)
-        except KeyError:
-            continue
+        except KeyError:  # not on this direction's route (it starts at the release point's edge)
+            x = -math.inf
         if x > trains0[0].start_s_m + 1.0:
             pts.append((f"km{k:g}", k, x))
+        else:  # the trains never pass it after their release: no headway there in this direction
+            warnings.warn(f"{direction}: measuring point km {k:g} lies before the release point (km {rel_km:g}) in this direction: not measured {direction}",
+                          stacklevel=2)
     if not pts:
         return []
     # shorten the simulated route: last measuring point + braking distance + train + 2 km
