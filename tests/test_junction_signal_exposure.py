@@ -73,3 +73,18 @@ def test_an_unknown_set_for_the_junction_study_is_one_clear_error(tmp_path, caps
     code = main(["study", "junction", "--line", "regional_graded", "--assumptions", "nosuchset", "--out", str(tmp_path / "j")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "--assumptions" in err[0] and "nosuchset" in err[0] and not (tmp_path / "j").exists()
+
+
+def test_a_junction_study_file_names_its_set_as_the_command_does(in_tmp, capsys):
+    from vcsumo.cli.main import main
+    from vcsumo.cli.study_files import load_study
+
+    tmp_path = in_tmp
+    good = tmp_path / "j.yaml"
+    good.write_text("study: junction\nline: regional_graded\nassumptions: etcs_typical\n")
+    assert load_study(good).command_values()["assumptions"] == "etcs_typical"
+    bad = tmp_path / "k.yaml"
+    bad.write_text("study: junction\nline: regional_graded\nassumptions: nosuchset\nout: res\n")
+    assert main(["study", "run", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bad) in err[0] and "assumptions" in err[0] and "nosuchset" in err[0] and not (tmp_path / "res").exists()

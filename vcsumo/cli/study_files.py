@@ -80,11 +80,17 @@ class JunctionStudy(StudyFile, CommandConfig):
     block_length_m: BlockLength | None = None
     step_length_s: Step = 0.5
     vc_step_length_s: Step = 0.2
+    assumptions: str | None = Field(default=None, description="Assumption set of the separation model (shipped name or path; default etcs_typical)",
+                                    json_schema_extra={"path": True})
     seed: int = Field(default=42, ge=0, le=2**31 - 1, description="Random seed (not negative)")
     out: Out = None
 
     def inputs(self) -> None:
+        from vcsumo.signalling.assumptions import load_assumptions
+
         line = load_line_spec(self, "line")
+        with self.blame("assumptions"):
+            load_assumptions(self.assumptions)
         if self.train:
             load_train(self, "train", self.train)
         for i, c in enumerate(self.controllers):
@@ -99,7 +105,7 @@ class JunctionStudy(StudyFile, CommandConfig):
         values = dict(line_spec=self.line, junctions=self.junction, train=self.train, controllers=",".join(self.controllers), first=self.first,
                       variants=self.junction_signal, directions=",".join(self.directions), approach_m=self.approach_m, window_m=self.window_m,
                       block_length_m=self.block_length_m, step_length=self.step_length_s, vc_step_length=self.vc_step_length_s, seed=self.seed,
-                      out=self.out_path)
+                      assumptions=self.assumptions, out=self.out_path)
         if self.offsets_s:
             values["offsets"] = ",".join(f"{o:g}" for o in self.offsets_s)
         return values
