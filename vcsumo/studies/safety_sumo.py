@@ -39,6 +39,7 @@ import numpy as np
 
 from vcsumo.control.channel import ChannelConfig, Window
 from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit
+from vcsumo.errors import VcsumoError
 from vcsumo.plant import emergency_brake_limit
 from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.separation import RelativeBraking, SeparationModel
@@ -61,6 +62,11 @@ def _network(line_spec: str):
     return line, build_network(line)
 
 
+START_TOLERANCE = 0.01
+"""How far SUMO's first report of a train may be from where and how fast the scenario starts it, m and
+m/s (SUMO reports positions to 1 mm and speeds to 0.1 mm/s)."""
+
+
 class ConvoyEmergency:
     """A loop driver around the VC driver: the leader's emergency stop and every train's true braking.
 
@@ -72,6 +78,10 @@ class ConvoyEmergency:
     def __init__(self, vc: VCDriver, leader_id: str, brake_time_s: float, true: dict[str, TrainParams], plans: dict[str, PlannedTrain], step_s: float):
         self.vc, self.leader_id, self.brake_time_s, self.true, self.plans, self.dt = vc, leader_id, brake_time_s, true, plans, step_s
         self.leader_braked_at_s = math.nan
+        self.start_error: str | None = None
+        """After the first step: "" when SUMO started every train where and as fast as the scenario
+        starts it (its depart position and speed), else what differed (SUMO inserts a train later, or
+        elsewhere, when its own insertion rules refuse the start: a different scenario)."""
 
     def predecessor_of(self, train_id: str) -> str | None:
         return self.vc.predecessor_of(train_id)
@@ -86,7 +96,20 @@ class ConvoyEmergency:
         force = emergency_brake_limit(p, v_mps) if emergency else float(brake_force_limit(p, max(v_mps, 0.0)))
         return -float(acceleration(p, v_mps, -force, prof.mean_gradient(s_m, p.length_m), prof.tunnel_factor_at(s_m)))
 
+    def check_start(self, snap: Snapshot) -> str:
+        """What differs between SUMO's first report of the trains and the scenario's start ("" if nothing)."""
+        wrong = []
+        for tid, plan in self.plans.items():
+            st = snap.trains.get(tid)
+            if st is None:
+                wrong.append(f"{tid} was not inserted")
+            elif abs(st.s_m - plan.depart_pos_m) > START_TOLERANCE or abs(st.speed_mps - plan.depart_speed_mps) > START_TOLERANCE:
+                wrong.append(f"{tid} at {st.s_m:.2f} m and {st.speed_mps:.2f} m/s, not {plan.depart_pos_m:.2f} m and {plan.depart_speed_mps:.2f} m/s")
+        return f"SUMO did not start the scenario's convoy as drawn at t = {snap.time_s:g} s: {'; '.join(wrong)}" if wrong else ""
+
     def make_step(self, snap: Snapshot) -> dict[str, float]:
+        if self.start_error is None:
+            self.start_error = self.check_start(snap)
         cmds = self.vc.make_step(snap)
         for fid, v_cmd in cmds.items():
             st = snap.trains[fid]
@@ -102,9 +125,15 @@ class ConvoyEmergency:
 
 
 def flying_start(topo, full_edges: list[str], full: RouteProfile, train, tid: str, s_m: float, v_mps: float, direction: str) -> PlannedTrain:
-    """A planned train on the main track with its front at ``s_m`` of the full route, at ``v_mps`` (at
-    most the limit of the edge it starts on: SUMO refuses a faster departure), departing at t = 0."""
-    v_mps = min(v_mps, full.speed_limit_at(s_m))
+    """A planned train on the main track with its front at ``s_m`` of the full route, at ``v_mps``,
+    departing at t = 0.  The speed is the scenario's (:func:`~vcsumo.studies.safety_scenarios.initial_gaps`:
+    at most what the train is permitted where it stands), so the SUMO loop starts the offline loop's
+    scenario; a speed above the limit of the edge it starts on (SUMO would refuse the departure) is an
+    error, never lowered here."""
+    limit = full.speed_limit_at(s_m)
+    if v_mps > limit + 1e-9:
+        raise VcsumoError(f"train {tid} would start at {3.6 * v_mps:.1f} km/h above the {3.6 * limit:.0f} km/h limit where it stands "
+                          f"(route position {s_m:.0f} m): the scenario must start every train at most at its permitted speed")
     i0 = full.index_at(s_m)
     edges = full_edges[i0:]
     pos = s_m - float(full.starts_m[i0])
@@ -126,7 +155,7 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
     params = [true_params(stocks[k], rng, c, emergency_top=(k == 0), assumptions=a) for k, c in enumerate(spec.corners)]
     ids = [f"{spec.id}_t{k}" for k in range(n)]
     rules = [RelativeBraking(model, stocks[k], stocks[k - 1], route.profile) for k in range(1, n)]
-    positions, speeds, gaps0 = initial_gaps(spec, follower_stacks_for(controller, route, ids, cfg, stocks), stocks, rules, model, route.profile)
+    positions, speeds, gaps0 = initial_gaps(spec, follower_stacks_for(controller, route, ids, cfg, stocks), stocks, rules, model, route.profile, cfg.step_s)
     variants = [stocks[k].vtype_variant(ids[k], params[k]) for k in range(n)]
     trains = [flying_start(topo, route.edges, route.profile, variants[k], ids[k], positions[k], speeds[k], spec.direction) for k in range(n)]
     outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
@@ -161,5 +190,5 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
         "emergency_activations": summ["vc_emergency_activations"], "emergency_time_s": summ["vc_emergency_steps"] * cfg.step_s,
         "initial_true_barrier_m": b0 if math.isfinite(b0) else math.nan, "max_true_barrier_m": bmax if supervised else math.nan,
         "time_lost_s": math.nan, "simulated_s": float(res.summary["simulated_until_s"]), "wall_time_s": time.perf_counter() - t_wall,
-        "error": "" if not math.isnan(driver.leader_braked_at_s) else "the leader never braked (the run ended first)",
+        "error": driver.start_error or ("" if not math.isnan(driver.leader_braked_at_s) else "the leader never braked (the run ended first)"),
     }
