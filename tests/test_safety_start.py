@@ -232,3 +232,26 @@ def test_a_start_sumo_refuses_is_an_error_never_a_clean_run(monkeypatch):
     assert row["error"].startswith("SUMO did not start the scenario's convoy as drawn") and "s90000_t1 was not inserted" in row["error"], row["error"]
     summary = safety.summarize_safety(pd.DataFrame([{**off, "loop": "offline"}, {**row, "loop": "sumo"}]))
     assert summary.set_index("loop").loc["sumo", "failed_runs"] == 1 and not safety.bar_met(summary, min_scenarios=1)
+
+
+@pytest.mark.sumo
+def test_the_leader_cruises_at_its_drawn_speed_in_both_loops(monkeypatch):
+    """The scenario's leader cruises at its drawn speed until its brake: the SUMO loop's leader,
+    driven by SUMO, ran up to its top speed instead (s00088: drawn 112 km/h, braked from 160 km/h at
+    108.6 s) while the offline loop's held the drawn speed."""
+    spec = dataclasses.replace(OPEN_LINE, leader_speed_mps=30.0, follower_speed_mps=30.0, brake_time_s=40.0)
+    leader = f"{spec.id}_t0"
+    sumo_v: list[tuple[float, float]] = []
+    make_step = safety_sumo.ConvoyEmergency.make_step
+
+    def record(self, snap):
+        if leader in snap.trains:
+            sumo_v.append((snap.time_s, snap.trains[leader].speed_mps))
+        return make_step(self, snap)
+
+    monkeypatch.setattr(safety_sumo.ConvoyEmergency, "make_step", record)
+    cfg = SafetyCampaign(loop="sumo", lines=[LINE], controllers=["cbc"], step_s=STEP_S)
+    row = safety_sumo.run_sumo_scenario(spec, "cbc", cfg)
+    assert row["error"] == "" and row["separation_violations"] == 0
+    cruise = [v for t, v in sumo_v if t < spec.brake_time_s]
+    assert len(cruise) > 150 and max(cruise) <= 30.0 + 0.01 and min(cruise) >= 29.0, (min(cruise), max(cruise))

@@ -7,13 +7,15 @@ regime and the VC driver (:class:`~vcsumo.sim.vc_driver.VCDriver`: every followe
 — nominal controller → CBF supervisor → separation guard → fault stage — under the campaign's
 assumption set, on what the seeded channel delivers):
 
-* the convoy starts flying on the line's main track (leader and followers at their drawn speeds
-  and the initial gaps of the offline campaign, inside every follower's safe separation);
+* the convoy starts flying on the line's main track, at the offline loop's start
+  (:func:`~vcsumo.studies.safety_scenarios.initial_gaps`: every train at most at its permitted speed
+  where it stands, every follower outside its safe separation); a train SUMO does not insert there at
+  that speed makes the run an error (SUMO's rail-signal insertion check is off: a convoy runs in one block);
 * every train's SUMO vType carries its drawn true parameters (mass, resistance, traction, power,
   service and emergency deceleration — :meth:`vcsumo.rolling_stock.RollingStock.vtype_variant`),
   while everything on board plans with the nominal model and its box;
-* the leader is driven by SUMO (moving block, braking-curve supervision) until its drawn brake
-  time, then by :class:`ConvoyEmergency` with speed mode 26 (SUMO's deceleration cap off): each
+* the leader is driven by SUMO (moving block, braking-curve supervision) at most at its drawn speed
+  (its vType's maxSpeed, as the offline loop's leader cruises at it) until its drawn brake time, then by :class:`ConvoyEmergency` with speed mode 26 (SUMO's deceleration cap off): each
   step it loses what its emergency brake at the top of its range, its true resistance and the
   gradient under it take off (eq. 1b with its true parameters), down to a stop;
 * a follower's speed command cannot fall faster than its true train can brake (its emergency brake
@@ -162,7 +164,8 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
     ids = [f"{spec.id}_t{k}" for k in range(n)]
     rules = [RelativeBraking(model, stocks[k], stocks[k - 1], route.profile) for k in range(1, n)]
     positions, speeds, gaps0 = initial_gaps(spec, follower_stacks_for(controller, route, ids, cfg, stocks), stocks, rules, model, route.profile, cfg.step_s)
-    variants = [stocks[k].vtype_variant(ids[k], params[k]) for k in range(n)]
+    # the leader cruises at most at its drawn speed until it brakes (the offline loop's leader too): SUMO drives it, its vType capped there
+    variants = [stocks[k].vtype_variant(ids[k], params[k], max_speed_ms=speeds[0] if k == 0 else None) for k in range(n)]
     trains = [flying_start(topo, route.edges, route.profile, variants[k], ids[k], positions[k], speeds[k], spec.direction) for k in range(n)]
     outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
     channel = ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
