@@ -18,8 +18,12 @@ for every controller and does not depend on how many scenarios are run) draws:
     speed) while the followers go straight on; the pair is watched until the leader's rear has
     cleared the junction;
 
-  every follower starts inside the safe separation of the run-health monitor's rule (and of the
-  CBF's barrier for ``cbf-`` controllers);
+  every follower starts outside the safe separation of the run-health monitor's rule (and of the
+  CBF's barrier for ``cbf-`` controllers) at the speeds the trains start at;
+* every train starts at most at the speed it is permitted where it stands (:func:`start_speed_limit`:
+  the limit under its whole train, its top speed, its service-brake curve to every lower limit ahead
+  after its brake build-up) — the leader in the draw, each follower where :func:`initial_gaps`
+  places it (the one start of the offline and the SUMO loop);
 * the leader's cruise speed (30–100 % of the line speed there, at most every train's top speed)
   and the time of its **emergency brake** (at the top of its emergency range under the assumption
   set, :func:`true_params`): 10–120 s (cruise), 5–120 s (forming), 0–120 s (merge), around its
