@@ -25,7 +25,9 @@ import pytest
 from vcsumo.control.brake_build_up import BrakeBuildUp
 from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
 from vcsumo.studies import safety, safety_sumo
-from vcsumo.studies.safety_scenarios import SafetyCampaign, ScenarioSpec, campaign_assumptions, follower_stacks_for, initial_gaps, line_route, stock
+from vcsumo.studies.safety_scenarios import (
+    SafetyCampaign, ScenarioSpec, campaign_assumptions, draw_scenario, follower_stacks_for, initial_gaps, line_route, stock,
+)
 
 LINE = "regional_graded"
 RESTRICTION = (14500.0, 16500.0, 100.0 / 3.6)  # up: from, to (route m), speed m/s
@@ -255,3 +257,34 @@ def test_the_leader_cruises_at_its_drawn_speed_in_both_loops(monkeypatch):
     assert row["error"] == "" and row["separation_violations"] == 0
     cruise = [v for t, v in sumo_v if t < spec.brake_time_s]
     assert len(cruise) > 150 and max(cruise) <= 30.0 + 0.01 and min(cruise) >= 29.0, (min(cruise), max(cruise))
+
+
+def test_the_shipped_campaigns_scenarios_start_within_their_permitted_speeds():
+    """The default campaign's first 200 scenarios (both loops' kinds; offline: merge and split too), every
+    train checked where it stands.  On the base 10 of them started a train too fast (s00117, milano_bologna
+    cruise: a follower at 184 km/h in a 160 km/h limit; s00025, firenze_bologna split: the leader at
+    274 km/h 1,315 m before the turnout it diverges at, 160 km/h, which it would have passed at 240 km/h)."""
+    cfg = SafetyCampaign(controllers=["cbc"])
+    model = SeparationModel(campaign_assumptions(None))
+    a = model.assumptions
+    checked = 0
+    for index in range(200):
+        spec = draw_scenario(cfg, index)
+        route = line_route(spec.line, spec.direction)
+        prof = route.profile
+        stocks = [stock(s) for s in spec.stocks]
+        ids = [f"T{k}" for k in range(len(stocks))]
+        stacks = follower_stacks_for("cbc", route, ids, cfg, stocks)
+        rules = [RelativeBraking(model, stocks[k], stocks[k - 1], prof) for k in range(1, len(stocks))]
+        positions, speeds, _ = initial_gaps(spec, stacks, stocks, rules, model, prof, cfg.step_s)
+        for k, (st, s, v) in enumerate(zip(stocks, positions, speeds)):
+            assert v <= min(prof.speed_limit_train(s, st.length_m), st.max_speed_ms) + 1e-9, (spec.id, k)
+            build = BrakeBuildUp(st, a)
+            dead = build.actuation_time(None, build.service_mps2) + 1.5 * cfg.step_s
+            targets = prof.restriction_targets() + ([(spec.junction_s_m, spec.diverging_speed_mps)] if spec.kind == "split" and k == 0 else [])
+            br = RouteBraking(model, st, prof, "service")
+            for s_t, v_t in targets:
+                if s < s_t < s + 10_000.0:
+                    assert speed_at_restriction(br, s, v, dead, s_t) <= v_t + 1e-6, (spec.id, k, s_t)
+                    checked += 1
+    assert checked > 100
