@@ -15,9 +15,10 @@ assumption set, on what the seeded channel delivers):
   service and emergency deceleration — :meth:`vcsumo.rolling_stock.RollingStock.vtype_variant`),
   while everything on board plans with the nominal model and its box;
 * the leader is driven by SUMO (moving block, braking-curve supervision) at most at its drawn speed
-  (its vType's maxSpeed, as the offline loop's leader cruises at it) until its drawn brake time, then by :class:`ConvoyEmergency` with speed mode 26 (SUMO's deceleration cap off): each
-  step it loses what its emergency brake at the top of its range, its true resistance and the
-  gradient under it take off (eq. 1b with its true parameters), down to a stop;
+  (its vType's maxSpeed, as the offline loop's leader cruises at it) until its drawn brake time,
+  then by :class:`ConvoyEmergency` with speed mode 26 (SUMO's deceleration cap off): each step it
+  loses what its emergency brake at the top of its range, its true resistance and the gradient
+  under it take off (eq. 1b with its true parameters), down to a stop;
 * a follower's speed command cannot fall faster than its true train can brake (its emergency brake
   within ±10 % when its command is flagged ``emergency``, else its true service envelope): SUMO
   under speed mode 26 would follow any command, so the true braking is applied here.
