@@ -98,7 +98,10 @@ def test_cli_runs_the_sumo_loop_into_the_same_table(tmp_path, capsys):
 
 def test_a_flying_start_never_departs_above_its_edge_limit(line_factory, network_factory):
     """A follower placed in a lower limit than its leader (scenario s00079 of a 100-scenario SUMO
-    campaign: milano_bologna down) departs at that limit: SUMO refuses a faster departure."""
+    campaign: milano_bologna down) must not depart above it: SUMO refuses a faster departure.  The
+    scenario starts it at most at its permitted speed (tests/test_safety_start.py); a faster start
+    is an error, never lowered silently (that made the SUMO loop run another scenario than the offline loop)."""
+    from vcsumo.errors import VcsumoError
     from vcsumo.rolling_stock import load_rolling_stock
     from vcsumo.route_profile import RouteProfile
     from vcsumo.studies.safety_sumo import flying_start
@@ -108,7 +111,9 @@ def test_a_flying_start_never_departs_above_its_edge_limit(line_factory, network
     full = RouteProfile.from_edges(net.topology, track.edges)
     s_low = 500.0  # inside the 80 km/h limit over the terminus
     assert full.speed_limit_at(s_low) < 30.0
-    t = flying_start(net.topology, list(track.edges), full, load_rolling_stock("regional_emu160"), "x", s_low, 44.4, "up")
+    with pytest.raises(VcsumoError, match=r"train x would start at 159.8 km/h above the 80 km/h limit where it stands"):
+        flying_start(net.topology, list(track.edges), full, load_rolling_stock("regional_emu160"), "x", s_low, 44.4, "up")
+    t = flying_start(net.topology, list(track.edges), full, load_rolling_stock("regional_emu160"), "x", s_low, full.speed_limit_at(s_low), "up")
     assert t.depart_speed_mps == full.speed_limit_at(s_low)
     t = flying_start(net.topology, list(track.edges), full, load_rolling_stock("regional_emu160"), "y", 10000.0, 30.0, "up")
     assert t.depart_speed_mps == 30.0

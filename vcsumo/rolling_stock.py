@@ -205,7 +205,7 @@ class RollingStock(StrictModel):
         )
 
 
-    def vtype_variant(self, tag: str, true_params: TrainParams) -> "RollingStock":
+    def vtype_variant(self, tag: str, true_params: TrainParams, max_speed_ms: float | None = None) -> "RollingStock":
         """This train with a SUMO vType of its own that carries drawn ("true") parameters.
 
         The copy is named ``<name>_<tag>`` (so each variant gets its own vType ids in a route file)
@@ -213,6 +213,8 @@ class RollingStock(StrictModel):
         monitor read — stays this train's nominal one; only :meth:`vtype_xml` writes ``true_params``
         (mass, resistance, traction, power, service and emergency deceleration): SUMO then runs the
         train as it really is while everything on board plans with the nominal model and its box.
+        ``max_speed_ms``: the vType's maxSpeed, the speed SUMO drives it at most (a train told to
+        cruise below its top speed; None: its top speed).
         """
         if not tag or not all(c.isalnum() or c == "_" for c in tag) or tag.lower() != tag:
             raise ValueError(f"vType variant tag '{tag}' must be lower-case letters, digits and _")
@@ -222,6 +224,7 @@ class RollingStock(StrictModel):
             "max_traction_n": true_params.max_traction_n, "max_power_w": true_params.max_power_w,
             "service_brake_decel_mps2": true_params.service_brake_decel_mps2,
             "emergency_brake_decel_mps2": max(true_params.emergency_brake_decel_mps2, true_params.service_brake_decel_mps2),
+            **({} if max_speed_ms is None else {"max_speed_kmh": 3.6 * min(max_speed_ms, self.max_speed_ms)}),
         })
         return _VTypeVariant(**{**self.__dict__, "name": true.name}, true_stock=true)
 

@@ -196,6 +196,8 @@ class PlannedTrain:
     """May berth behind another train standing in the same platform track (a virtually coupled
     follower, standing in the platform with its convoy as one train).  Other trains stop at the
     platform's departure end and wait until the platform track is clear."""
+    insertion_checks: str | None = None
+    """SUMO's ``insertionChecks`` for this train (None: all of them)."""
 
 
 def resolve_timetable_path(spec: str | Path, line: Line) -> Path:
@@ -441,7 +443,8 @@ def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.
             arrival_pos = max(0.0, t.end_pos_m - max(t.stock.length_m, END_OF_TRACK_WINDOW_M, position_error_m + END_OF_TRACK_SHORT_M))
         out.append(
             f'  <vehicle id={quoteattr(t.id)} type="{t.stock.vtype_id(first_tf)}" depart="{t.depart_s:.2f}" '
-            f'departPos="{t.depart_pos_m:.3f}" departSpeed="{speed}" arrivalPos="{arrival_pos:.3f}" line={quoteattr(t.service)}>'
+            f'departPos="{t.depart_pos_m:.3f}" departSpeed="{speed}" arrivalPos="{arrival_pos:.3f}" line={quoteattr(t.service)}'
+            + (f' insertionChecks={quoteattr(t.insertion_checks)}>' if t.insertion_checks is not None else '>')
         )
         out.append(f'    <route edges="{" ".join(t.edges)}"/>')
         for s in t.stops:

@@ -222,11 +222,11 @@ def run_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> di
     ids = [f"T{k}" for k in range(n)]
     stacks = follower_stacks_for(controller, route, ids, cfg, stocks)
     rules = [RelativeBraking(model, stocks[k], stocks[k - 1], prof) for k in range(1, n)]
-    positions, speeds, gaps0 = initial_gaps(spec, stacks, stocks, rules, model, prof)
+    positions, speeds, gaps0 = initial_gaps(spec, stacks, stocks, rules, model, prof, dt)
 
     # the leader's target speed: its unhindered run capped at its cruise speed (and the turnout for a split)
     plims = [(spec.junction_s_m, spec.diverging_speed_mps)] if spec.kind == "split" else []
-    v_l0 = spec.leader_speed_mps
+    v_l0 = speeds[0]
     horizon = cfg.max_duration_s + 60.0
     lead_run = _unhindered(stocks[0].params(), capped_profile(prof, max(v_l0, 1.0), plims), positions[0], v_l0, horizon)
     cap_f = capped_profile(prof, max(max(speeds), 1.0))

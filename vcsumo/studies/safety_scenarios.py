@@ -18,8 +18,12 @@ for every controller and does not depend on how many scenarios are run) draws:
     speed) while the followers go straight on; the pair is watched until the leader's rear has
     cleared the junction;
 
-  every follower starts inside the safe separation of the run-health monitor's rule (and of the
-  CBF's barrier for ``cbf-`` controllers);
+  every follower starts outside the safe separation of the run-health monitor's rule (and of the
+  CBF's barrier for ``cbf-`` controllers) at the speeds the trains start at;
+* every train starts at most at the speed it is permitted where it stands (:func:`start_speed_limit`:
+  the limit under its whole train, its top speed, its service-brake curve to every lower limit ahead
+  after its brake build-up) — the leader in the draw, each follower where :func:`initial_gaps`
+  places it (the one start of the offline and the SUMO loop);
 * the leader's cruise speed (30–100 % of the line speed there, at most every train's top speed)
   and the time of its **emergency brake** (at the top of its emergency range under the assumption
   set, :func:`true_params`): 10–120 s (cruise), 5–120 s (forming), 0–120 s (merge), around its
@@ -48,12 +52,14 @@ from pydantic import Field, field_validator, model_validator
 
 from vcsumo.config import StrictModel
 from vcsumo.control.proxies import sample_params
+from vcsumo.control.brake_build_up import BrakeBuildUp
 from vcsumo.control.stack import FollowerStack
 from vcsumo.dynamics import TrainParams
+from vcsumo.errors import VcsumoError
 from vcsumo.rolling_stock import RollingStock, load_rolling_stock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.assumptions import AssumptionSet, load_assumptions
-from vcsumo.signalling.separation import RelativeBraking, SeparationModel, brake_range
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, brake_range
 from vcsumo.sim.convoy_plan import load_channel
 from vcsumo.sim.offline import follower_stacks, steady_force
 
@@ -198,8 +204,10 @@ class ScenarioSpec:
     """Rolling stock of every train, leader first."""
     leader_start_m: float
     leader_speed_mps: float
+    """The leader's initial speed, m/s: drawn, at most what :func:`start_speed_limit` permits where it stands."""
     follower_speed_mps: float
-    """Initial speed of the first follower (others start at the leader's speed), m/s."""
+    """Drawn initial speed of the first follower (of every follower in a merge; the others are drawn at the
+    leader's speed), m/s: each starts at most at what it is permitted where it stands (:func:`initial_gaps`)."""
     brake_time_s: float
     spacing_factor: float
     """Initial gap = factor × the controller's coupled spacing (cruise, forming) or admission gap (merge)."""
@@ -233,6 +241,10 @@ def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
     else:
         names = (route.stock_spec,) * (n_f + 1)
     v_train = min(stock(n).max_speed_ms for n in names)
+
+    def permitted(v: float, turnouts: tuple = ()) -> float:  # the leader's start speed: at most what it is permitted where it stands
+        return start_speed_limit(stock(names[0]), prof, s_lead, v, campaign_assumptions(cfg.assumptions), cfg.step_s, turnouts)
+
     j_s, v_div = math.nan, math.nan
     follower_speed = math.nan
     if kind in ("merge", "split"):
@@ -242,7 +254,7 @@ def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
         # the leader is 1-4 km before the turnout at up to its line speed
         s_lead = max(j_s - float(rng.uniform(1000.0, 4000.0)), 6000.0)
         v_line = min(prof.min_speed_over(s_lead, j_s), v_train)
-        v0 = float(rng.uniform(max(v_div, 0.3 * v_line), v_line)) if v_line > v_div else v_line
+        v0 = permitted(float(rng.uniform(max(v_div, 0.3 * v_line), v_line)) if v_line > v_div else v_line, ((j_s, v_div),))
         t_arrive = (j_s - s_lead) / max(v0, 1.0)
         t_brake = float(rng.uniform(0.3 * t_arrive, t_arrive + 30.0))
         follower_speed = v0
@@ -250,7 +262,7 @@ def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
         # the leader has passed the junction by 0-2 km; the first follower runs off the branch at the diverging speed
         s_lead = j_s + float(rng.uniform(stock(names[0]).length_m + 100.0, 2000.0))
         v_line = min(prof.speed_limit_at(s_lead), v_train)
-        v0 = float(rng.uniform(0.3 * v_line, v_line))
+        v0 = permitted(float(rng.uniform(0.3 * v_line, v_line)))
         follower_speed = min(v_div, prof.speed_limit_at(j_s))
         t_brake = float(rng.uniform(0.0, 120.0))
     else:
@@ -259,7 +271,7 @@ def draw_scenario(cfg: SafetyCampaign, index: int) -> ScenarioSpec:
             lo, hi = 0.25 * prof.length_m, 0.5 * prof.length_m
         s_lead = float(rng.uniform(lo, hi))
         v_line = min(prof.speed_limit_at(s_lead), v_train)
-        v0 = float(rng.uniform(0.3 * v_line, v_line))
+        v0 = permitted(float(rng.uniform(0.3 * v_line, v_line)))
         follower_speed = v0 if kind == "cruise" else min(v0 + float(rng.uniform(0.0, 10.0)), v_line)
         t_brake = float(rng.uniform(10.0, 120.0) if kind == "cruise" else rng.uniform(5.0, 120.0))
     factor = float(rng.uniform(2.0, 5.0) if kind == "forming" else rng.uniform(1.0, 1.3))
@@ -324,43 +336,110 @@ def follower_stacks_for(controller: str, route: LineRoute, ids: list[str], cfg: 
                            assumptions=campaign_assumptions(cfg.assumptions), message_age_s=stack_message_age_s(cfg))
 
 
+class _StartCurve:
+    """A train's braking to the line's lower limits, for its start speed (:func:`start_speed_limit`)."""
+
+    def __init__(self, train: RollingStock, profile: RouteProfile, assumptions: AssumptionSet):
+        self.keep = (train, profile, assumptions)  # the key's objects stay alive while the entry does
+        self.service = RouteBraking(SeparationModel(assumptions), train, profile, "service")
+        build = BrakeBuildUp(train, assumptions)
+        self.build_up_s = build.actuation_time(None, build.service_mps2)
+        self.targets = profile.restriction_targets()
+
+
+_START_CURVES: dict[tuple[int, int, int], _StartCurve] = {}
+
+
+def start_speed_limit(train: RollingStock, profile: RouteProfile, s_m: float, v_mps: float, assumptions: AssumptionSet, step_s: float,
+                      turnouts: tuple[tuple[float, float], ...] = ()) -> float:
+    """The highest speed ≤ ``v_mps`` a train may start a scenario at with its front at ``s_m``, m/s:
+    the limit under its whole train (SUMO's rule and the run-health monitor's,
+    :meth:`RouteProfile.speed_limit_train`), its top speed, and its guaranteed service-brake curve to
+    every lower limit ahead (and the ``turnouts`` (position, speed) it diverges at) after its brake build-up from full traction (the longest,
+    :meth:`~vcsumo.control.brake_build_up.BrakeBuildUp.actuation_time`) and 1.5 steps — at least
+    what the separation guard's line test and the loop's supervision of SUMO-driven trains ask, so
+    no train starts where its own protection has to brake it harder than service."""
+    key = (id(train), id(profile), id(assumptions))
+    c = _START_CURVES.get(key)
+    if c is None:
+        c = _START_CURVES[key] = _StartCurve(train, profile, assumptions)
+    v = min(v_mps, profile.speed_limit_train(s_m, train.length_m), train.max_speed_ms)
+    dead = c.build_up_s + 1.5 * step_s
+    reach = s_m + c.service.stopping_distance(s_m, v, dead) + 50.0
+    v_curve = math.inf
+    for s_t, v_t in (sorted(c.targets + list(turnouts)) if turnouts else c.targets):
+        if s_t > reach:
+            break
+        if s_t > s_m:
+            v_curve = min(v_curve, c.service.permitted_speed(s_m, s_t, v_t, dead, v))
+    # the curve at v holds at every lower speed (the brake power limit only eases as the train slows)
+    return max(min(v, v_curve), 0.0)
+
+
 def initial_gaps(spec: ScenarioSpec, stacks: list[FollowerStack], stocks: list[RollingStock], rules: list[RelativeBraking], model: SeparationModel,
-                 profile: RouteProfile) -> tuple[list[float], list[float], list[float]]:
-    """(positions, speeds, gaps) of the convoy at t = 0: the kind's spacing, never inside any
-    follower's safe separation (the monitor's rule, and the CBF's barrier for ``cbf-`` stacks, each
-    + 1 % + 2 m: the true train's force and mass differ a little from the nominal ones the gap is computed with)."""
+                 profile: RouteProfile, step_s: float) -> tuple[list[float], list[float], list[float]]:
+    """(positions, speeds, gaps) of the convoy at t = 0 — the one start of both loops: every train at
+    its drawn speed, at most what :func:`start_speed_limit` permits **at its own position**; the
+    kind's spacing at those speeds, never inside any follower's safe separation at them (the
+    monitor's rule, and the CBF's barrier for ``cbf-`` stacks, each + 1 % + 2 m: the true train's
+    force and mass differ a little from the nominal ones the gap is computed with).  The convoy is
+    moved forward (and placed again) when its last train would not be on the route."""
+    start = spec.leader_start_m
+    for _ in range(4):
+        positions, speeds, gaps = _convoy_at(start, spec, stacks, stocks, rules, model, profile, step_s)
+        shift = stocks[-1].length_m + 10.0 - positions[-1]
+        if shift <= 0.0:
+            return positions, speeds, gaps
+        start += shift
+    raise VcsumoError(f"scenario {spec.id}: the convoy does not fit on the route ({spec.line} {spec.direction})")
+
+
+def _convoy_at(s_lead: float, spec: ScenarioSpec, stacks: list[FollowerStack], stocks: list[RollingStock], rules: list[RelativeBraking],
+               model: SeparationModel, profile: RouteProfile, step_s: float) -> tuple[list[float], list[float], list[float]]:
     n = spec.followers + 1
+    a = model.assumptions
     v_l0 = spec.leader_speed_mps
-    speeds = [v_l0, spec.follower_speed_mps] + [v_l0] * (n - 2) if spec.kind != "merge" else [v_l0] + [spec.follower_speed_mps] * (n - 1)
-    positions = [spec.leader_start_m]
+    drawn = [v_l0, spec.follower_speed_mps] + [v_l0] * (n - 2) if spec.kind != "merge" else [v_l0] + [spec.follower_speed_mps] * (n - 1)
+    positions = [s_lead]
+    turnouts = ((spec.junction_s_m, spec.diverging_speed_mps),) if spec.kind == "split" else ()  # where the leader of a split diverges
+    speeds = [start_speed_limit(stocks[0], profile, s_lead, v_l0, a, step_s, turnouts)]
     gaps = []
     for k in range(1, n):
-        st, f, v, v_p, s_p = stocks[k], stacks[k - 1], speeds[k], speeds[k - 1], positions[-1]
+        st, f, v_p, s_p = stocks[k], stacks[k - 1], speeds[k - 1], positions[-1]
         L_p = stocks[k - 1].length_m
 
-        def safe(g: float) -> float:  # the safe separation at that gap, + 1 % + 2 m
+        def safe(g: float, v: float) -> float:  # the safe separation at that gap and speed, + 1 % + 2 m
             s_f = s_p - L_p - g
             need = rules[k - 1].required_gap(s_f, v, s_p, v_p, model.dead_time_s)
             if f.supervisor is not None:
                 need = max(need, f.supervisor.required_gap_m(profile, s_p, v_p, s_f, v, steady_force(st.params(), v, profile, s_f)))
             return 1.01 * need + 2.0
 
-        own = max(f.coupled_gap_m(max(v, v_p)), f.d_min_m + 1.0)
-        if spec.kind == "merge" and k == 1:
-            # admitted by the interlocking: absolute braking distance at the nominal service brake + the minimum safe gap
-            g = spec.spacing_factor * (v * v / (2.0 * st.service_brake_decel_mps2) + f.d_min_m + 1.0)
-            g = max(g, s_p - L_p - spec.junction_s_m + 1.0)  # the follower is at or before the turnout
-        elif spec.kind in ("cruise", "split") or k == 1:
-            g = spec.spacing_factor * own
+        def spacing(v: float) -> float:  # the kind's spacing at the follower's speed
+            own = max(f.coupled_gap_m(max(v, v_p)), f.d_min_m + 1.0)
+            if spec.kind == "merge" and k == 1:
+                # admitted by the interlocking: absolute braking distance at the nominal service brake + the minimum safe gap
+                g = spec.spacing_factor * (v * v / (2.0 * st.service_brake_decel_mps2) + f.d_min_m + 1.0)
+                return max(g, s_p - L_p - spec.junction_s_m + 1.0)  # the follower is at or before the turnout
+            return spec.spacing_factor * own if spec.kind in ("cruise", "split") or k == 1 else 1.05 * own
+
+        # the follower's speed depends on where it stands, its gap on that speed: placed again until the
+        # gap is the kind's spacing (or the safe separation) at the speed permitted where that gap puts it
+        # (after 20 placements the gap only grows, so a follower between two limits cannot swing for ever)
+        g = spacing(drawn[k])
+        for it in range(100):
+            v = start_speed_limit(st, profile, s_p - L_p - g, drawn[k], a, step_s)
+            g_new = max(spacing(v), safe(g, v))
+            if it >= 20:
+                g_new = max(g, g_new)
+            if abs(g_new - g) <= 1e-3:
+                break
+            g = g_new
         else:
-            g = 1.05 * own
-        for _ in range(3):  # the safe separation depends a little on where the follower is
-            g = max(g, safe(g))
+            raise VcsumoError(f"scenario {spec.id}: no start for follower {k} where its gap holds at its permitted speed")
+        speeds.append(v)
         gaps.append(g)
         positions.append(s_p - L_p - g)
-    shift = stocks[-1].length_m + 10.0 - positions[-1]
-    if shift > 0:
-        positions = [x + shift for x in positions]
     return positions, speeds, gaps
 
 
@@ -376,5 +455,6 @@ def spec_columns(spec: ScenarioSpec, prof: RouteProfile) -> dict:
 
 __all__ = [
     "SAFETY_CONTROLLERS", "KINDS", "SUMO_KINDS", "SafetyCampaign", "campaign_assumptions", "stock", "Junction", "LineRoute", "line_route",
-    "capped_profile", "ScenarioSpec", "draw_scenario", "true_params", "stack_message_age_s", "follower_stacks_for", "initial_gaps", "spec_columns",
+    "capped_profile", "ScenarioSpec", "draw_scenario", "true_params", "stack_message_age_s", "follower_stacks_for", "start_speed_limit", "initial_gaps",
+    "spec_columns",
 ]

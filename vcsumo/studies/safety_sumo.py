@@ -7,15 +7,18 @@ regime and the VC driver (:class:`~vcsumo.sim.vc_driver.VCDriver`: every followe
 — nominal controller → CBF supervisor → separation guard → fault stage — under the campaign's
 assumption set, on what the seeded channel delivers):
 
-* the convoy starts flying on the line's main track (leader and followers at their drawn speeds
-  and the initial gaps of the offline campaign, inside every follower's safe separation);
+* the convoy starts flying on the line's main track, at the offline loop's start
+  (:func:`~vcsumo.studies.safety_scenarios.initial_gaps`: every train at most at its permitted speed
+  where it stands, every follower outside its safe separation); a train SUMO does not insert there at
+  that speed makes the run an error (SUMO's rail-signal insertion check is off: a convoy runs in one block);
 * every train's SUMO vType carries its drawn true parameters (mass, resistance, traction, power,
   service and emergency deceleration — :meth:`vcsumo.rolling_stock.RollingStock.vtype_variant`),
   while everything on board plans with the nominal model and its box;
-* the leader is driven by SUMO (moving block, braking-curve supervision) until its drawn brake
-  time, then by :class:`ConvoyEmergency` with speed mode 26 (SUMO's deceleration cap off): each
-  step it loses what its emergency brake at the top of its range, its true resistance and the
-  gradient under it take off (eq. 1b with its true parameters), down to a stop;
+* the leader is driven by SUMO (moving block, braking-curve supervision) at most at its drawn speed
+  (its vType's maxSpeed, as the offline loop's leader cruises at it) until its drawn brake time,
+  then by :class:`ConvoyEmergency` with speed mode 26 (SUMO's deceleration cap off): each step it
+  loses what its emergency brake at the top of its range, its true resistance and the gradient
+  under it take off (eq. 1b with its true parameters), down to a stop;
 * a follower's speed command cannot fall faster than its true train can brake (its emergency brake
   within ±10 % when its command is flagged ``emergency``, else its true service envelope): SUMO
   under speed mode 26 would follow any command, so the true braking is applied here.
@@ -39,6 +42,7 @@ import numpy as np
 
 from vcsumo.control.channel import ChannelConfig, Window
 from vcsumo.dynamics import TrainParams, acceleration, brake_force_limit
+from vcsumo.errors import VcsumoError
 from vcsumo.plant import emergency_brake_limit
 from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.separation import RelativeBraking, SeparationModel
@@ -61,6 +65,16 @@ def _network(line_spec: str):
     return line, build_network(line)
 
 
+FLYING_START_CHECKS = "collision leaderGap followerGap stop arrivalSpeed speedLimit"
+"""SUMO's insertion checks for a flying start: all but ``junction`` — its rail-signal check inserts a
+train only once the train ahead has left the block it starts in (a convoy follower starting in its
+predecessor's block: 0.4 s late in scenario s00088), while a virtually coupled convoy runs inside one block."""
+
+START_TOLERANCE = 0.01
+"""How far SUMO's first report of a train may be from where and how fast the scenario starts it, m and
+m/s (SUMO reports positions to 1 mm and speeds to 0.1 mm/s)."""
+
+
 class ConvoyEmergency:
     """A loop driver around the VC driver: the leader's emergency stop and every train's true braking.
 
@@ -72,6 +86,10 @@ class ConvoyEmergency:
     def __init__(self, vc: VCDriver, leader_id: str, brake_time_s: float, true: dict[str, TrainParams], plans: dict[str, PlannedTrain], step_s: float):
         self.vc, self.leader_id, self.brake_time_s, self.true, self.plans, self.dt = vc, leader_id, brake_time_s, true, plans, step_s
         self.leader_braked_at_s = math.nan
+        self.start_error: str | None = None
+        """After the first step: "" when SUMO started every train where and as fast as the scenario
+        starts it (its depart position and speed), else what differed (SUMO inserts a train later, or
+        elsewhere, when its own insertion rules refuse the start: a different scenario)."""
 
     def predecessor_of(self, train_id: str) -> str | None:
         return self.vc.predecessor_of(train_id)
@@ -86,7 +104,20 @@ class ConvoyEmergency:
         force = emergency_brake_limit(p, v_mps) if emergency else float(brake_force_limit(p, max(v_mps, 0.0)))
         return -float(acceleration(p, v_mps, -force, prof.mean_gradient(s_m, p.length_m), prof.tunnel_factor_at(s_m)))
 
+    def check_start(self, snap: Snapshot) -> str:
+        """What differs between SUMO's first report of the trains and the scenario's start ("" if nothing)."""
+        wrong = []
+        for tid, plan in self.plans.items():
+            st = snap.trains.get(tid)
+            if st is None:
+                wrong.append(f"{tid} was not inserted")
+            elif abs(st.s_m - plan.depart_pos_m) > START_TOLERANCE or abs(st.speed_mps - plan.depart_speed_mps) > START_TOLERANCE:
+                wrong.append(f"{tid} at {st.s_m:.2f} m and {st.speed_mps:.2f} m/s, not {plan.depart_pos_m:.2f} m and {plan.depart_speed_mps:.2f} m/s")
+        return f"SUMO did not start the scenario's convoy as drawn at t = {snap.time_s:g} s: {'; '.join(wrong)}" if wrong else ""
+
     def make_step(self, snap: Snapshot) -> dict[str, float]:
+        if self.start_error is None:
+            self.start_error = self.check_start(snap)
         cmds = self.vc.make_step(snap)
         for fid, v_cmd in cmds.items():
             st = snap.trains[fid]
@@ -102,14 +133,21 @@ class ConvoyEmergency:
 
 
 def flying_start(topo, full_edges: list[str], full: RouteProfile, train, tid: str, s_m: float, v_mps: float, direction: str) -> PlannedTrain:
-    """A planned train on the main track with its front at ``s_m`` of the full route, at ``v_mps`` (at
-    most the limit of the edge it starts on: SUMO refuses a faster departure), departing at t = 0."""
-    v_mps = min(v_mps, full.speed_limit_at(s_m))
+    """A planned train on the main track with its front at ``s_m`` of the full route, at ``v_mps``,
+    departing at t = 0.  The speed is the scenario's (:func:`~vcsumo.studies.safety_scenarios.initial_gaps`:
+    at most what the train is permitted where it stands), so the SUMO loop starts the offline loop's
+    scenario; a speed above the limit of the edge it starts on (SUMO would refuse the departure) is an
+    error, never lowered here."""
+    limit = full.speed_limit_at(s_m)
+    if v_mps > limit + 1e-9:
+        raise VcsumoError(f"train {tid} would start at {3.6 * v_mps:.1f} km/h above the {3.6 * limit:.0f} km/h limit where it stands "
+                          f"(route position {s_m:.0f} m): the scenario must start every train at most at its permitted speed")
     i0 = full.index_at(s_m)
     edges = full_edges[i0:]
     pos = s_m - float(full.starts_m[i0])
     return PlannedTrain(id=tid, service=tid, stock=train, edges=edges, profile=RouteProfile.from_edges(topo, edges), depart_s=0.0, depart_pos_m=pos,
-                        depart_speed_mps=v_mps, direction=direction, end_pos_m=None, start_s_m=pos, stop_at_end=False)
+                        depart_speed_mps=v_mps, direction=direction, end_pos_m=None, start_s_m=pos, stop_at_end=False,
+                        insertion_checks=FLYING_START_CHECKS)
 
 
 def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) -> dict:
@@ -126,8 +164,9 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
     params = [true_params(stocks[k], rng, c, emergency_top=(k == 0), assumptions=a) for k, c in enumerate(spec.corners)]
     ids = [f"{spec.id}_t{k}" for k in range(n)]
     rules = [RelativeBraking(model, stocks[k], stocks[k - 1], route.profile) for k in range(1, n)]
-    positions, speeds, gaps0 = initial_gaps(spec, follower_stacks_for(controller, route, ids, cfg, stocks), stocks, rules, model, route.profile)
-    variants = [stocks[k].vtype_variant(ids[k], params[k]) for k in range(n)]
+    positions, speeds, gaps0 = initial_gaps(spec, follower_stacks_for(controller, route, ids, cfg, stocks), stocks, rules, model, route.profile, cfg.step_s)
+    # the leader cruises at most at its drawn speed until it brakes (the offline loop's leader too): SUMO drives it, its vType capped there
+    variants = [stocks[k].vtype_variant(ids[k], params[k], max_speed_ms=speeds[0] if k == 0 else None) for k in range(n)]
     trains = [flying_start(topo, route.edges, route.profile, variants[k], ids[k], positions[k], speeds[k], spec.direction) for k in range(n)]
     outages = [Window(start_s=spec.outage[0], end_s=spec.outage[1])] if spec.outage else []
     channel = ChannelConfig(model="exponential", period_s=cfg.channel_period_s, delay_s=spec.delay_s, mean_extra_s=spec.mean_extra_delay_s,
@@ -161,5 +200,5 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
         "emergency_activations": summ["vc_emergency_activations"], "emergency_time_s": summ["vc_emergency_steps"] * cfg.step_s,
         "initial_true_barrier_m": b0 if math.isfinite(b0) else math.nan, "max_true_barrier_m": bmax if supervised else math.nan,
         "time_lost_s": math.nan, "simulated_s": float(res.summary["simulated_until_s"]), "wall_time_s": time.perf_counter() - t_wall,
-        "error": "" if not math.isnan(driver.leader_braked_at_s) else "the leader never braked (the run ended first)",
+        "error": driver.start_error or ("" if not math.isnan(driver.leader_braked_at_s) else "the leader never braked (the run ended first)"),
     }
