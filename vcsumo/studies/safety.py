@@ -65,7 +65,7 @@ from vcsumo.signalling.separation import RelativeBraking, SeparationModel
 from vcsumo.sim.health import GAP_TOLERANCE_M
 from vcsumo.sim.offline import Odometry, OfflineTrain, run_convoy, steady_force, tracking_force
 from vcsumo.studies.safety_scenarios import (  # noqa: F401 - the campaign's scenarios are part of this module's interface
-    KINDS, SAFETY_CONTROLLERS, Junction, LineRoute, SafetyCampaign, ScenarioSpec, campaign_assumptions, capped_profile, draw_scenario, follower_stacks_for,
+    HEALTH_FAULT_COLUMNS, KINDS, SAFETY_CONTROLLERS, Junction, LineRoute, SafetyCampaign, ScenarioSpec, campaign_assumptions, capped_profile, draw_scenario, follower_stacks_for,
     initial_gaps, line_route, spec_columns, stock, true_params,
 )
 
@@ -73,11 +73,14 @@ SAFETY_COLUMNS = [
     "key", "loop", "scenario", "controller", "supervised", "line", "direction", "kind", "followers", "leader_stock", "follower_stocks", "km_start",
     "leader_speed_mps", "brake_time_s", "delay_s", "mean_extra_delay_s", "loss_probability", "outage_s", "position_error_m", "corner_trains",
     "initial_gap_m", "min_gap_m", "min_margin_m", "separation_violations", "below_separation_time_s", "collisions", "max_impact_kmh",
+    "overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops", "teleports",
     "emergency_activations", "emergency_time_s", "initial_true_barrier_m", "max_true_barrier_m", "time_lost_s", "simulated_s", "wall_time_s", "error",
 ]
 """``safety.csv``: min_margin_m is the smallest (true gap − safe separation of the run-health
 monitor's rule), m; separation_violations its episodes below −1 cm; the barrier columns are NaN
-for unsupervised controllers."""
+for unsupervised controllers; :data:`HEALTH_FAULT_COLUMNS` the SUMO loop's run-health counters
+(empty in the offline loop, which does not measure them)."""
+
 
 
 def barrier_gap_m(sup, profile: RouteProfile, s_m: float, v_mps: float, length_m: float) -> float:
@@ -398,7 +401,7 @@ def violation_upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
 SUMMARY_COLUMNS = [
     "loop", "controller", "supervised", "scenarios", "failed_runs", "scenarios_with_violation", "violation_rate", "violation_rate_upper95",
     "separation_violations", "collisions", "max_impact_kmh", "min_gap_m", "min_margin_m", "max_true_barrier_m", "started_outside_safe_set",
-    "barrier_breaches", "emergency_activations_mean", "emergency_time_s_mean", "time_lost_s_mean", "time_lost_s_p95", "wall_time_s_mean",
+    "barrier_breaches", "runs_with_health_fault", "emergency_activations_mean", "emergency_time_s_mean", "time_lost_s_mean", "time_lost_s_p95", "wall_time_s_mean",
 ]
 
 
@@ -406,7 +409,8 @@ BARRIER_TOLERANCE_M = 1e-6
 """How far the CBF's true barrier may rise above max(b(0), 0) before the run is a barrier breach, m
 (and how far above 0 b(0) must be for a run to have started outside the safe set)."""
 
-RUN_FAULTS = {"separation_violation": "a separation violation", "collision": "a collision", "barrier_breach": "a barrier breach"}
+RUN_FAULTS = {"separation_violation": "a separation violation", "collision": "a collision", "barrier_breach": "a barrier breach",
+              "health_fault": "a run-health fault (overspeed, braking beyond service, authority overrun, SUMO emergency stop or teleport)"}
 """The safety faults of a finished run (the columns of :func:`run_faults`) and how a message names them."""
 
 
@@ -418,7 +422,9 @@ def run_faults(runs: pd.DataFrame) -> pd.DataFrame:
     * ``collision``: the gap reached 0;
     * ``barrier_breach`` (CBF-supervised runs): the largest true barrier rose above max(b(0), 0) +
       :data:`BARRIER_TOLERANCE_M` (Theorem VI.1: from b(0) ≤ 0, b stays ≤ 0; a run started with
-      b(0) > 0 must not see b rise above b(0)); never for unsupervised runs (NaN barrier).
+      b(0) > 0 must not see b rise above b(0)); never for unsupervised runs (NaN barrier);
+    * ``health_fault`` (SUMO loop): any of :data:`HEALTH_FAULT_COLUMNS` non-zero (until 2026-11-28
+      the SUMO loop's rows left them out: such a run was reported clean).
 
     A run is clean when no column is true.  The one rule behind both :func:`summarize_safety`'s
     counts and the exit status of ``vcsumo study safety``."""
@@ -428,6 +434,7 @@ def run_faults(runs: pd.DataFrame) -> pd.DataFrame:
         "separation_violation": runs["separation_violations"] > 0,
         "collision": runs["collisions"] > 0,
         "barrier_breach": bmax > b0.fillna(0.0).clip(lower=0.0) + BARRIER_TOLERANCE_M,
+        "health_fault": np.logical_or.reduce([np.zeros(len(runs), bool)] + [pd.to_numeric(runs[c], errors="coerce").fillna(0).to_numpy() > 0 for c in HEALTH_FAULT_COLUMNS if c in runs]),
     }, index=runs.index, columns=list(RUN_FAULTS))
 
 
@@ -462,7 +469,7 @@ def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
             "separation_violations": int(ok["separation_violations"].sum()), "collisions": int(ok["collisions"].sum()), "max_impact_kmh": agg("max_impact_kmh", "max"),
             "min_gap_m": agg("min_gap_m", "min"), "min_margin_m": agg("min_margin_m", "min"), "max_true_barrier_m": agg("max_true_barrier_m", "max"),
             "started_outside_safe_set": int((pd.to_numeric(ok["initial_true_barrier_m"], errors="coerce") > BARRIER_TOLERANCE_M).sum()),
-            "barrier_breaches": int(faults["barrier_breach"].sum()),
+            "barrier_breaches": int(faults["barrier_breach"].sum()), "runs_with_health_fault": int(faults["health_fault"].sum()),
             "emergency_activations_mean": agg("emergency_activations", "mean"), "emergency_time_s_mean": agg("emergency_time_s", "mean"),
             "time_lost_s_mean": agg("time_lost_s", "mean"), "time_lost_s_p95": float(pd.to_numeric(ok["time_lost_s"], errors="coerce").quantile(0.95)) if n else math.nan,
             "wall_time_s_mean": agg("wall_time_s", "mean"),
@@ -472,9 +479,9 @@ def summarize_safety(df: pd.DataFrame) -> pd.DataFrame:
 
 def bar_met(summary: pd.DataFrame, min_scenarios: int = 1000) -> bool:
     """Issue 10's bar: every controller of the campaign has ≥ ``min_scenarios`` runs, none failed,
-    0 separation violations and 0 collisions (and no barrier breach)."""
+    0 separation violations and 0 collisions (and no barrier breach, no run-health fault)."""
     ok = (summary["scenarios"] >= min_scenarios) & (summary["failed_runs"] == 0) & (summary["scenarios_with_violation"] == 0) \
-        & (summary["collisions"] == 0) & (summary["barrier_breaches"] == 0)
+        & (summary["collisions"] == 0) & (summary["barrier_breaches"] == 0) & (summary["runs_with_health_fault"] == 0)
     return bool(len(summary)) and bool(ok.all())
 
 

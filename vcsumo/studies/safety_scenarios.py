@@ -453,7 +453,13 @@ def spec_columns(spec: ScenarioSpec, prof: RouteProfile) -> dict:
     }
 
 
+HEALTH_FAULT_COLUMNS = ("overspeed_events", "beyond_service_brakings", "authority_overruns", "sumo_emergency_stops", "teleports")
+"""The run-health counters of a SUMO-loop run besides separation and collisions (:mod:`vcsumo.sim.health`):
+any of them non-zero is a fault of the run (:func:`vcsumo.studies.safety.run_faults`)."""
+
+
 __all__ = [
+    "HEALTH_FAULT_COLUMNS",
     "SAFETY_CONTROLLERS", "KINDS", "SUMO_KINDS", "SafetyCampaign", "campaign_assumptions", "stock", "Junction", "LineRoute", "line_route",
     "capped_profile", "ScenarioSpec", "draw_scenario", "true_params", "stack_message_age_s", "follower_stacks_for", "start_speed_limit", "initial_gaps",
     "spec_columns",

@@ -49,7 +49,7 @@ from vcsumo.signalling.separation import RelativeBraking, SeparationModel
 from vcsumo.sim.loop import Scenario, Snapshot, simulate
 from vcsumo.sim.vc_driver import VCDriver
 from vcsumo.studies.safety_scenarios import (
-    SafetyCampaign, ScenarioSpec, campaign_assumptions, follower_stacks_for, initial_gaps, line_route, spec_columns, stack_message_age_s, stock,
+    HEALTH_FAULT_COLUMNS, SafetyCampaign, ScenarioSpec, campaign_assumptions, follower_stacks_for, initial_gaps, line_route, spec_columns, stack_message_age_s, stock,
     true_params,
 )
 from vcsumo.timetable import PlannedTrain
@@ -197,6 +197,7 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
         "min_gap_m": float(fol["min_gap_m"].min()), "min_margin_m": float(margins.min()) if len(margins) else math.nan,
         "separation_violations": int(fol["separation_violations"].sum()), "below_separation_time_s": float(fol["below_separation_time_s"].sum()),
         "collisions": int(res.summary["collisions"]), "max_impact_kmh": float(res.summary["max_impact_kmh"]),
+        **{c: int(res.summary[c]) for c in HEALTH_FAULT_COLUMNS},
         "emergency_activations": summ["vc_emergency_activations"], "emergency_time_s": summ["vc_emergency_steps"] * cfg.step_s,
         "initial_true_barrier_m": b0 if math.isfinite(b0) else math.nan, "max_true_barrier_m": bmax if supervised else math.nan,
         "time_lost_s": math.nan, "simulated_s": float(res.summary["simulated_until_s"]), "wall_time_s": time.perf_counter() - t_wall,
