@@ -25,7 +25,7 @@ command-line option takes the new name.  A supervisor is added the same way with
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -84,6 +84,10 @@ class StackContext:
     """Let the supervisor keep its per-step history."""
     recovery_s: float = 1.0
     """The fault stage's latch, s."""
+    supervisor_gap_m: float | None = None
+    """The minimum gap the stack's supervisor protects (its d), m, set by :func:`build_follower_stack`
+    for a supervised family (None: no supervisor): a nominal controller with a gap constraint of its
+    own keeps it there rather than commanding traction into the supervisor's barrier."""
     reuse: dict | None = None
     """A cache owned by the caller in which builders may keep expensive objects between builds
     that the caller declares interchangeable (same route and convoy slot, used one at a time)."""
@@ -225,15 +229,16 @@ def build_follower_stack(spec: str, ctx: StackContext) -> FollowerStack:
     s = controller_spec(spec, ctx.field)
     entry = s.entry
     nominal_params = _params(ctx.params if ctx.params is not None else s.params, entry.default_params, ctx)
-    built = entry.build(ctx, nominal_params)
-    files = {"nominal": str(nominal_params) if isinstance(nominal_params, Path) else ("(given)" if nominal_params is not None else "")}
-    supervisor, d_min = None, built.d_min_m
-    if s.supervisor is not None:
+    supervisor, files = None, {}
+    if s.supervisor is not None:  # built first: the nominal controller is told the gap it protects
         sup_entry = SUPERVISORS[s.supervisor]
         sup_params = _params(ctx.supervisor_params, sup_entry.default_params, ctx)
         supervisor, d_sup = sup_entry.build(ctx, sup_params)
-        d_min = max(d_min, d_sup)
+        ctx = replace(ctx, supervisor_gap_m=d_sup)
         files["supervisor"] = str(sup_params) if isinstance(sup_params, Path) else "(given)"
+    built = entry.build(ctx, nominal_params)
+    files = {"nominal": str(nominal_params) if isinstance(nominal_params, Path) else ("(given)" if nominal_params is not None else ""), **files}
+    d_min = built.d_min_m if supervisor is None else max(built.d_min_m, ctx.supervisor_gap_m)
     controller = built.controller
     if ctx.control_period_s is not None and abs(ctx.control_period_s - ctx.step_s) > 1e-9:
         controller = SampledController(controller, ctx.control_period_s)
@@ -277,6 +282,13 @@ def _build_mpc(ctx: StackContext, params) -> Nominal:
     a_f = min(settings.a_follower_mps2, ctx.ego.service_brake_decel_mps2)
     if a_f != settings.a_follower_mps2:
         update["a_follower_mps2"] = a_f
+    if ctx.supervisor_gap_m is not None and ctx.supervisor_gap_m > settings.d_min_m:
+        # under a supervisor, d_min (12f/12l, 12m) is the gap the supervisor protects and d_des keeps
+        # its margin above it: with Felez's 4 m / 10 m the NMPC commanded traction into its CBF's
+        # barrier for ever behind a stopped leader (an emergency override every other step)
+        shift = ctx.supervisor_gap_m - settings.d_min_m
+        update["d0_m"] = settings.d0_m + shift
+        update["d_des_m"] = settings.d_des_m + shift
     if abs(period - ctx.step_s) > 1e-9:
         update["horizon_steps"] = max(5, int(round(settings.horizon_steps * ctx.step_s / period)))
     if abs(settings.step_s - period) > 1e-9:

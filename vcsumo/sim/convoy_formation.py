@@ -4,6 +4,11 @@ A follower is **formed** while it runs (above 5 m/s) within 10 % + 10 m of its c
 (the spacing its stack keeps at its speed: :meth:`vcsumo.sim.vc_driver.VCDriver.coupled_spacing_m`).
 Time it runs farther behind is put down to one cause, checked in this order:
 
+* ``its predecessor left <station> without it: the platform (… m) cannot hold both`` — since it
+  left a stop where it waited outside the platform until its predecessor had gone (a platform too
+  short for the pair, warned before the run), until it is formed again: the gap is the platform's,
+  whatever it then runs at (until 2026-11-28 this time was put down to the speed limit or full
+  traction the follower then ran at: "at full traction" for a timetable matter);
 * ``at its permitted speed`` — it already runs at the limit under its whole train or at its own
   top speed (equal trains at the same line speed cannot close a gap opened behind a speed
   restriction, a station or a descent; a slower train cannot keep up with a faster one);
@@ -35,6 +40,8 @@ def within_spacing(gap_m: float, spacing_m: float) -> bool:
     return gap_m <= (1.0 + FORMED_REL) * spacing_m + FORMED_ABS_M
 
 
+PLATFORM_REASON = "its predecessor left {station} without it: the platform ({length}) cannot hold both"
+"""The reason for the time behind after a stop where the follower waited outside the platform."""
 REASONS = ("at its permitted speed", "at full traction", "held by the separation guard", "the controller did not close it")
 
 
@@ -50,6 +57,19 @@ class Formation:
     held_s: float = 0.0
     other_s: float = 0.0
     max_excess_m: float = 0.0
+    platform_s: float = 0.0
+    outside: tuple = ()
+    """Per stop of the follower (the driver's order): "station (length)" where it waits outside the
+    platform until its predecessor has left, else None."""
+    left_without: str | None = None
+    """The stop its predecessor left without it, while it has not formed since."""
+    platform_at: str | None = None
+    """The last such stop it ran behind from."""
+
+    def passed_stop(self, k: int) -> None:
+        """The follower has passed its ``k``-th stop (it leaves it)."""
+        if k < len(self.outside) and self.outside[k] is not None:
+            self.left_without = self.platform_at = self.outside[k]
 
     def update(self, time_s: float, dt_s: float, speed_mps: float, gap_m: float, spacing_m: float, limit_mps: float,
                nominal_speed_mps: float, guard_speed_mps: float, at_full_traction: bool = False) -> None:
@@ -62,9 +82,12 @@ class Formation:
             self.formed_s += dt_s
             if math.isnan(self.formed_at_s):
                 self.formed_at_s = time_s
+            self.left_without = None
             return
         self.max_excess_m = max(self.max_excess_m, gap_m - spacing_m)
-        if speed_mps >= limit_mps - AT_LIMIT_MPS:
+        if self.left_without is not None:
+            self.platform_s += dt_s
+        elif speed_mps >= limit_mps - AT_LIMIT_MPS:
             self.at_limit_s += dt_s
         elif at_full_traction:
             self.traction_s += dt_s
@@ -84,7 +107,11 @@ class Formation:
         if self.formed_share >= 0.5:
             return ""
         times = (self.at_limit_s, self.traction_s, self.held_s, self.other_s)
-        return REASONS[max(range(len(times)), key=lambda k: times[k])]
+        k = max(range(len(times)), key=lambda k: times[k])
+        if self.platform_s > times[k] and self.platform_at is not None:
+            station, _, length = self.platform_at.partition(" (")
+            return PLATFORM_REASON.format(station=station, length=length.rstrip(")"))
+        return REASONS[k]
 
     def row(self) -> dict:
         share = self.formed_share

@@ -267,6 +267,15 @@ def follower_dwells(ego: PlannedTrain, pred: PlannedTrain, n_stops: int, standst
     return (out + [None] * n_stops)[:n_stops]
 
 
+def stops_outside(ego: PlannedTrain, pred: PlannedTrain, dwells_s: list[float | None]) -> tuple[str | None, ...]:
+    """Per stop (:func:`follower_stops`' order, ``dwells_s`` of :func:`follower_dwells`): "station
+    (platform length)" where the follower waits outside the platform until its predecessor, stopping
+    there too, has left (the platform cannot hold both), else None."""
+    pred_at = {x.platform for x in pred.stops}
+    return tuple(f"{x.station} ({x.platform_length_m:g} m)" if k < len(ego.stops) and x.platform in pred_at and dwells_s[k] is None else None
+                 for k, x in enumerate(ego.stops[:len(dwells_s)])) + (None,) * max(0, len(dwells_s) - len(ego.stops))
+
+
 def convoy_stop_holds(waiting: list[tuple[str, str, int, float]], now_s: float, step_s: float) -> dict[str, float]:
     """How long each train must stay at a platform its convoy shares: train -> the earliest time its
     stop may end, s.  ``waiting``: the followers standing (or stopping) behind their predecessor in a

@@ -70,8 +70,7 @@ from vcsumo.running_time import unhindered_run
 from vcsumo.sim.convoy_formation import MOVING_MPS, Formation
 from vcsumo.sim.convoy_insertion import ConvoyInsertion
 from vcsumo.sim.convoy_plan import (MIN_CONVOY_DWELL_S, Frame, align_convoy_stops, arrange_convoy_departures, convoy_stop_holds, convoys_from_timetable,
-                                    follower_dwells, follower_stops, frame, load_channel, platform_queues,
-                                     warn_short_platforms)
+                                    follower_dwells, follower_stops, frame, load_channel, platform_queues, stops_outside, warn_short_platforms)
 from vcsumo.sim.junction_policy import JunctionPolicy
 from vcsumo.sim.loop import Snapshot
 from vcsumo.sim.records import VC_RECORD_COLUMNS, VC_RECORD_FLOATS, CsvStream, RunningStats
@@ -137,8 +136,8 @@ class _Follower:
     braking: RouteBraking | None = None
     """The follower's guaranteed service braking on its route, the supervision's (stop hand-over)."""
     stood_since_s: float = math.nan
-    formation: Formation = field(default_factory=Formation)
     """Since when it stands at a shared stop behind its predecessor, s."""
+    formation: Formation = field(default_factory=Formation)
 
     @property
     def stage(self):
@@ -206,6 +205,7 @@ class VCDriver:
         queues = {tid: q for members in convoys for tid, q in platform_queues(members, standstill).items()}
         for fid, f in self.followers.items():  # where its predecessor waits for it to serve its dwell (the platform holds them all)
             f.dwells_s = follower_dwells(f.plan, f.pred, len(f.stops_m), standstill[fid], queues[f.pred.id])
+            f.formation.outside = stops_outside(f.plan, f.pred, f.dwells_s)  # where it waits outside until its predecessor has left
         arrange_convoy_departures(convoys, standstill, self.model)
         self.insertion = ConvoyInsertion(convoys, standstill)  # nor does SUMO insert one in front of its predecessor
         warn_short_platforms(convoys, standstill)
@@ -313,6 +313,7 @@ class VCDriver:
             )
             # station stops are SUMO's (see module doc)
             while f.next_stop < len(f.stops_m) and st.s_m > f.stops_m[f.next_stop] + 1.0:
+                f.formation.passed_stop(f.next_stop)
                 f.next_stop += 1
                 f.at_stop = False
                 f.stood_since_s = math.nan
@@ -365,8 +366,7 @@ class VCDriver:
                 f.coupled = False
                 continue
             if not f.coupled:
-                f.coupled = True
-                f.coupled_since_s = t
+                f.coupled, f.coupled_since_s = True, t
             sensed_gap = st.gap_m if st.leader == f.pred.id else None
             sensed_speed = pst.speed_mps if st.leader == f.pred.id else None
             obs = Observation(
