@@ -101,6 +101,14 @@ class SupervisorStats:
     emergency_time_s: float = 0.0
     max_robust_barrier_m: float = -math.inf
     max_true_barrier_m: float = -math.inf
+    first_true_barrier_m: float = math.nan
+    """The true barrier at the first step the predecessor was sensed, m (kept without the history)."""
+
+    def true_barrier(self, b_true: float) -> None:
+        """Count a true barrier value (the first one and the largest)."""
+        if math.isnan(self.first_true_barrier_m):
+            self.first_true_barrier_m = b_true
+        self.max_true_barrier_m = max(self.max_true_barrier_m, b_true)
 
 
 @dataclass
@@ -231,10 +239,14 @@ class CBFSupervisor:
         b_true = math.nan
         sensed = obs.sensed_gap_m is not None and obs.sensed_speed_mps is not None
         if not pred.branches:
-            if sensed:
+            if sensed:  # before the predecessor's first message: with the force the follower applies, as once it has one
                 s_l_true = s_f + obs.sensed_gap_m + self.leader_bounds.length_m
-                b_true = model.value(s_l_true, max(0.0, obs.sensed_speed_mps), s_f, v_f)[0]
-                stats.max_true_barrier_m = max(stats.max_true_barrier_m, b_true)
+                if isinstance(model, SeparationBarrier):  # (until 2026-11-28 at full traction: a run that never closed in counted a breach)
+                    f_now = self._applied_force_bound(t, obs.ego.force_n) if model.follower_delay_full_s > 0 else None
+                    b_true = model.value(s_l_true, max(0.0, obs.sensed_speed_mps), s_f, v_f, f_now)[0]
+                else:
+                    b_true = model.value(s_l_true, max(0.0, obs.sensed_speed_mps), s_f, v_f)[0]
+                stats.true_barrier(b_true)
             if cfg.brake_without_leader_data and obs.predecessor is not None:
                 return self._emergency(obs, nominal, math.nan, b_true, "no-data", math.nan)
             self._log(t, math.nan, b_true, False, "no-data", math.nan)
@@ -248,7 +260,7 @@ class CBFSupervisor:
             b_now, b_chk, b_true = self._barriers_paper(obs, nominal, model, pred, s_f, v_f, sensed)
         stats.max_robust_barrier_m = max(stats.max_robust_barrier_m, b_now)
         if sensed:
-            stats.max_true_barrier_m = max(stats.max_true_barrier_m, b_true)
+            stats.true_barrier(b_true)
         age = t - pred.branches[-1].t0_s
         c = age - cfg.t_max_s  # eq. 18
         if b_chk >= -cfg.trigger_margin_m:

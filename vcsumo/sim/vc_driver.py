@@ -25,25 +25,24 @@
    braking-distance rule and service-brake cap off).  Approaching its own stop the follower's
    guard keeps to the service brake (``Observation.next_stop_m``), so SUMO can take over there.
 
-Convoy leaders and trains outside convoys stay with SUMO (moving block).  A follower is coupled
-while its predecessor is on the part of its route they share (through a merge, the gap is the
-difference of their distances to the merge point; before its predecessor has reached the merge only
-once that puts it virtually ahead by its stack's spacing and the safe separation); split: to SUMO.
+Convoy leaders and trains outside convoys stay with SUMO (moving block).  A follower is coupled while
+its predecessor is on the part of its route they share (through a merge, the gap is the difference of
+their distances to the merge point; before its predecessor has reached the merge only once that puts
+it virtually ahead by its stack's spacing and the safe separation); split: to SUMO.
 
 Stations.  Convoy members leaving the same platform together depart at the leader's time, the
 follower standing behind the leader at its standstill gap (the convoy stands in the platform as
 one train, as in Felez et al. §IV-B); one the platform does not hold enters behind its predecessor
-(:attr:`VCDriver.insertion`, :mod:`~vcsumo.sim.convoy_insertion`).  The controllers know nothing of stops: a follower is handed
-to SUMO for its own station stop once its stop is within braking distance and either its speed is
-below 30 km/h (SUMO's on-sight moving-block rule lets it close up behind the standing leader) or
-the moving-block distance to its predecessor is already kept; it is coupled again once it has
-left the stop.
+(:attr:`VCDriver.insertion`, :mod:`~vcsumo.sim.convoy_insertion`).  The controllers know nothing
+of stops: a follower is handed to SUMO for its own station stop once its stop is within braking
+distance and either its speed is below 30 km/h (SUMO's on-sight moving-block rule lets it close up
+behind the standing leader) or the moving-block distance to its predecessor is kept; it is coupled
+again once it has left the stop.
 
-Controller names are the registry's (:func:`~vcsumo.control.registry.controller_names`: ``mpc``,
-``cbc``, ``cbf-mpc``, ``cbf-cbc``, ``cbf-cruise``); a parameter file can be named after a colon,
-e.g. ``cbc:cbc_plf`` or ``cbf-cbc:my_cbc.yaml`` (the CBF part reads ``controllers/cbf.yaml`` unless
-``cbf_config`` is given).  Predicted trajectories are broadcast only when the controller reads them
-(its registry entry's ``uses_plans``).
+Controller names are the registry's (:func:`~vcsumo.control.registry.controller_names`), a parameter
+file after a colon (``cbc:cbc_plf``); plans are broadcast only when the controller reads them.  Before
+its first command a moving follower applies the force holding its speed (the offline loop's start;
+until 2026-11-28 0 N, so on a descent its CBF braked at once), a standing one 0 N.
 """
 
 from __future__ import annotations
@@ -371,7 +370,8 @@ class VCDriver:
             sensed_speed = pst.speed_mps if st.leader == f.pred.id else None
             obs = Observation(
                 time_s=t, step_s=self.step_s, ego_id=fid,
-                ego=TrainStateMsg(t, st.s_m, st.speed_mps, st.accel_mps2, f.last_cmd.force_n if f.last_cmd else 0.0),
+                ego=TrainStateMsg(t, st.s_m, st.speed_mps, st.accel_mps2, f.last_cmd.force_n if f.last_cmd else 0.0 if st.speed_mps <= 0.0 else
+                                  float(running_resistance(f.params, st.speed_mps, f.plan.profile.tunnel_factor_at(st.s_m)) + gradient_force(f.params, f.plan.profile.mean_gradient(st.s_m, f.params.length_m)))),
                 params=f.params, profile=f.plan.profile, received=received, predecessor=f.pred.id, convoy=f.convoy,
                 sensed_gap_m=sensed_gap, sensed_speed_mps=sensed_speed,
                 # approaching its stop the follower keeps to service braking, so that SUMO (which serves it) can take over; the target is an obstacle too

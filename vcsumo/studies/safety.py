@@ -6,12 +6,10 @@ leader's speed and the time of its emergency brake at the top of its range, the 
 parameters of every train, odometry errors) and runs each of them once per controller (``mpc``,
 ``cbc``, ``cbf-mpc``, ``cbf-cbc`` by default) in one of two loops (``loop``):
 
-* ``offline`` (:func:`run_scenario`) — the offline closed loop (no SUMO, :mod:`vcsumo.sim.offline`):
-  every train is a :class:`~vcsumo.plant.TrainPlant` — the train model shared with the controllers
-  (Felez eq. 1, force lag, jerk limit) — with its *true* parameters, on the line's real gradient,
-  tunnel and speed-limit profile;
-* ``sumo`` (:mod:`vcsumo.studies.safety_sumo`) — the SUMO loop itself (:func:`vcsumo.sim.loop.simulate`
-  with the VC driver), the trains' SUMO vTypes carrying their true parameters.
+* ``offline`` (:func:`run_scenario`) — the offline closed loop (no SUMO, :mod:`vcsumo.sim.offline`): every
+  train is a :class:`~vcsumo.plant.TrainPlant` (Felez eq. 1, force lag, jerk limit) with its *true*
+  parameters, on the line's real gradient, tunnel and speed-limit profile;
+* ``sumo`` (:mod:`vcsumo.studies.safety_sumo`) — the SUMO loop itself (:func:`vcsumo.sim.loop.simulate` with the VC driver).
 
 Every follower runs the stack the capacity studies run, built by the controller registry
 (:mod:`vcsumo.control.registry`): nominal controller → CBF supervisor (``cbf-`` names) →
@@ -64,6 +62,7 @@ from vcsumo.running_time import unhindered_run
 from vcsumo.signalling.separation import RelativeBraking, SeparationModel
 from vcsumo.sim.health import GAP_TOLERANCE_M
 from vcsumo.sim.offline import Odometry, OfflineTrain, run_convoy, steady_force, tracking_force
+from vcsumo.studies.safety_inputs import check_lines_and_trains
 from vcsumo.studies.safety_scenarios import (  # noqa: F401 - the campaign's scenarios are part of this module's interface
     HEALTH_FAULT_COLUMNS, KINDS, SAFETY_CONTROLLERS, Junction, LineRoute, SafetyCampaign, ScenarioSpec, campaign_assumptions, capped_profile, draw_scenario, follower_stacks_for,
     initial_gaps, line_route, spec_columns, stock, true_params,
@@ -305,6 +304,7 @@ def check_campaign(cfg: SafetyCampaign, source: Path | None = None) -> None:
             stock(name)
         except InputError as exc:
             raise InputError(source, "--rolling-stock" if source is None else f"rolling_stock[{i}]", exc.message) from None
+    check_lines_and_trains(cfg)  # a kind a line cannot draw, a train a line cannot brake or start on
     aset = campaign_assumptions(cfg.assumptions)
     for i, c in enumerate(cfg.controllers):
         check_controller(c, "--controllers" if source is None else f"controllers[{i}]", supervisor_params=cfg.cbf_config)

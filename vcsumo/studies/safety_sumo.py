@@ -185,8 +185,9 @@ def run_sumo_scenario(spec: ScenarioSpec, controller: str, cfg: SafetyCampaign) 
     fol = res.trains.set_index("train").loc[ids[1:]]
     sups = [vc.followers[i].stack.supervisor for i in ids[1:]]
     supervised = sups[0] is not None
-    # the true barrier at the first step the follower saw its predecessor (SUMO reports it from the first step both run)
-    firsts = [next((b for b in s.history.true_barrier_m if math.isfinite(b)), math.nan) for s in sups if s is not None]
+    # the true barrier at the first step the follower sensed its predecessor (SUMO reports it from the first step both run); from the
+    # supervisor's counters: the VC driver keeps no barrier history (until 2026-11-28 read from it, so always NaN in this loop)
+    firsts = [s.stats.first_true_barrier_m for s in sups if s is not None]
     b0 = max((b for b in firsts if math.isfinite(b)), default=math.nan)
     bmax = max(s.stats.max_true_barrier_m for s in sups) if supervised else math.nan
     bmax = bmax if math.isfinite(bmax) else math.nan
