@@ -30,6 +30,29 @@ def _variant_label(r) -> str:
     return lab
 
 
+def identical_variants(groups: dict, columns: list[str]) -> dict:
+    """Variants whose rows (``columns``) equal an earlier variant's: ``{variant: [variants drawn
+    with it]}`` for the first of each set, ``{variant: None}`` for the others (drawn once, labelled
+    together: two identical runs, e.g. cbc and a CBF that never intervened, would hide one another)."""
+    out: dict = {}
+    seen: dict = {}
+    for key, g in groups.items():
+        data = g[[c for c in columns if c in g]].reset_index(drop=True)
+        first = next((k for k, d in seen.items() if d.shape == data.shape and d.equals(data)), None)
+        if first is None:
+            seen[key] = data
+            out[key] = [key]
+        else:
+            out[first].append(key)
+            out[key] = None
+    return out
+
+
+def _joined_label(rows: list) -> str:
+    labels = [_variant_label(r) for r in rows]
+    return labels[0] if len(labels) == 1 else " = ".join(labels) + " (identical runs)"
+
+
 def plot_junction_regimes(traj_csv: Path, out_dir: Path, before_km: float = 12.0, after_km: float = 15.0) -> list[Path]:
     """``junction_<regime>.png`` for every regime: virtual gap and speeds around each junction.
 
@@ -75,13 +98,17 @@ def plot_junction_regimes(traj_csv: Path, out_dir: Path, before_km: float = 12.0
                 name = sc[f"{kind}_junction"].iloc[0] if f"{kind}_junction" in sc else ""
                 lo, hi = (-before_km, after_km) if kind == "merge" else (-after_km, before_km / 2)
                 min_run = "merge_min" if sc.distance_to_merge_m.notna().any() else "split_min"
+                drawn = identical_variants({v: sc[(sc.controller == v[0]) & (sc.junction_signal == v[1])] for v in variants},
+                                           ["run", "role", "time_s", "virtual_gap_m", "speed_mps"])
                 for vi, (ctrl, var) in enumerate(variants):
                     color = _VC_COLORS[vi % len(_VC_COLORS)] if regime == "vc" else ("#888888" if regime == "fbs" else "#4477aa")
+                    if drawn.get((ctrl, var)) is None:
+                        continue
+                    lab = _joined_label([sc[(sc.controller == c) & (sc.junction_signal == v)].iloc[0] for c, v in drawn[(ctrl, var)]])
                     for run, g in sc[(sc.controller == ctrl) & (sc.junction_signal == var)].groupby("run"):
                         if run not in ("simultaneous", min_run):
                             continue
                         ls = "-" if run == "simultaneous" else "--"
-                        lab = _variant_label(g.iloc[0])
                         off = "Δ=0" if run == "simultaneous" else f"Δ*={g.offset_s.iloc[0]:.0f} s"
                         fol = g[g.role == "follower"].sort_values("time_s")
                         led = g[g.role == "leader"].sort_values("time_s")
@@ -134,26 +161,30 @@ def plot_junction_sweep(sweep_csv: Path, path: Path) -> Path | None:
     for ax, (j, d, lead) in zip(axes[0], scen):
         sc = df[(df.junction == j) & (df.direction == d) & (df.leader_service == lead)]
         vi = 0
-        for (regime, ctrl, var), g in sc.groupby(["regime", "controller", "junction_signal"], sort=False):
-            g = g.sort_values("offset_s")
+        cases = {k: g.sort_values("offset_s") for k, g in sc.groupby(["regime", "controller", "junction_signal"], sort=False)}
+        drawn = identical_variants(cases, ["offset_s", "follower_lost_END_s", "follower_lost_PM_s", "follower_lost_M_s", "healthy"])
+        for (regime, ctrl, var), g in cases.items():
+            if drawn[(regime, ctrl, var)] is None:
+                continue
+            name = _joined_label([cases[k].iloc[0] for k in drawn[(regime, ctrl, var)]])
             if regime == "vc":
                 color = _VC_COLORS[vi % len(_VC_COLORS)]
                 vi += 1
             else:
                 color = "#888888" if regime == "fbs" else "#4477aa"
             lost = g.follower_lost_END_s.replace([np.inf, -np.inf], np.nan)
-            ax.plot(g.offset_s, lost, "o-", ms=3, color=color, label=_variant_label(g.iloc[0]) + " (route end)")
+            ax.plot(g.offset_s, lost, "o-", ms=3, color=color, label=name + " (route end)")
             if "follower_lost_PM_s" in g and g.follower_lost_PM_s.notna().any():
                 pm = g.follower_lost_PM_s.replace([np.inf, -np.inf], np.nan)
-                ax.plot(g.offset_s, pm, "--", lw=1.0, color=color, label=_variant_label(g.iloc[0]) + " (after the merge)")
+                ax.plot(g.offset_s, pm, "--", lw=1.0, color=color, label=name + " (after the merge)")
             if "follower_lost_M_s" in g and g.follower_lost_M_s.notna().any():
                 at_j = g.follower_lost_M_s.replace([np.inf, -np.inf], np.nan)
-                ax.plot(g.offset_s, at_j, ":", lw=1.0, color=color, label=_variant_label(g.iloc[0]) + " (at the junction)")
+                ax.plot(g.offset_s, at_j, ":", lw=1.0, color=color, label=name + " (at the junction)")
             if "healthy" in g:
                 bad = g[g.healthy.astype(str) == "False"]
                 if len(bad):
                     ax.plot(bad.offset_s, bad.follower_lost_END_s.replace([np.inf, -np.inf], np.nan).fillna(0.0), "x", color="red", ms=8, mew=2,
-                            label=_variant_label(g.iloc[0]) + " not healthy")
+                            label=name + " not healthy")
         ax.axhline(0.0, color="k", lw=0.6)
         merges = "follower_lost_PM_s" in sc and sc.follower_lost_PM_s.replace([np.inf, -np.inf], np.nan).notna().any()
         ax.set_xlabel("arrival offset at the merge, alone [s]" if merges else "release interval at the common release point [s]")
