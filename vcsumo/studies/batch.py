@@ -319,10 +319,11 @@ def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path]
         inputs[f"timetable_{i}_{p.stem}"] = p
     if delay_config_path is not None:
         inputs["delay_config"] = Path(delay_config_path)
+    a_rec = (assumptions or load_assumptions()).record()
     params = {"seeds": seeds, "regimes": regimes, "controllers": controllers, "step_length_s": step_length_s,
               "block_length_m": block_length_m, "uic406_window_s": window_s, "delays": delays.model_dump(mode="json"),
               "delay_config_sha256": config_digest(delays), "runs": len(df), "new_runs": new_runs, "resumed_runs": resumed_runs,
-              "batch_wall_time_s": round(wall_time_s, 3), "assumptions": (assumptions or load_assumptions()).record()}
+              "batch_wall_time_s": round(wall_time_s, 3), "assumptions": a_rec}
     with ResultsFolder(out / "report", inputs=inputs, seed=None, params=params, overwrite=True) as rf:
         df.to_csv(rf.path / "batch_runs.csv", index=False)
         summarize(df).to_csv(rf.path / "batch_summary.csv", index=False)
@@ -330,9 +331,8 @@ def write_report(out: Path, df: pd.DataFrame, line: Line, timetables: list[Path]
         if uic.is_file():
             u = pd.read_csv(uic, dtype={"timetable_sha256": str, "assumptions_sha256": str})
             shas = set(df["timetable_sha256"])
-            a_sha = assumptions_digest((assumptions or load_assumptions()).record())
             u[u["timetable_sha256"].isin(shas) & u["regime"].isin(regimes) & (u["window_s"] == window_s)
-              & (u["assumptions_sha256"] == a_sha)].to_csv(rf.path / "uic406.csv", index=False)
+              & (u["assumptions_sha256"] == assumptions_digest(a_rec))].to_csv(rf.path / "uic406.csv", index=False)
         from vcsumo.plots.batch import plot_delays, plot_punctuality
 
         plot_delays(out / "batch_trains.csv", rf.path / "batch_runs.csv", rf.path / "batch_delays.png")
