@@ -32,7 +32,7 @@ def _csv(value: str) -> list[str]:
 @click.option("--workers", type=int, default=None, help="Parallel processes, 1 or more (default: number of CPUs; 1 = in this process)")
 @click.option("--scheduler", default=None, help="Run the scenarios on a Dask cluster: address of its scheduler, tcp://HOST:PORT")
 @click.option("--step-s", type=float, default=0.2, show_default=True, help="Control and integration step, s")
-@click.option("--control-period-s", type=float, default=0.4, show_default=True, help="Period of the nominal controllers (ATO cycle), s")
+@click.option("--control-period-s", type=float, default=None, help="Period of the nominal controllers (an ATO cycle), s, offline loop only (default: every step, as the capacity study's stacks)")
 @click.option("--followers-max", type=int, default=2, show_default=True, help="Largest number of followers behind the leader")
 @click.option("--kinds", default="cruise,forming,merge,split", show_default=True, help="Scenario kinds, comma-separated (the SUMO loop runs cruise and forming)")
 @click.option("--rolling-stock", default="etr1000,regional_emu160,hcmc_l1", show_default=True, help="Trains a heterogeneous convoy is drawn from (names or paths), comma-separated")
@@ -49,7 +49,7 @@ def _csv(value: str) -> list[str]:
 @click.option("--cbf", "cbf_config", default=None, help="CBF parameter file (controllers/<name>.yaml or a path; default: cbf)")
 @click.option("--assumptions", default=None, help="Assumption set of the separation model (shipped name or path; default etcs_typical)")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Results folder (re-running with the same --out resumes)")
-def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: int, workers: int | None, scheduler: str | None, step_s: float, control_period_s: float,
+def safety_cmd(loop: str, scenarios: int, lines: str, controllers: str, seed: int, workers: int | None, scheduler: str | None, step_s: float, control_period_s: float | None,
                followers_max: int, kinds: str, rolling_stock: str, heterogeneous_probability: float, loss_max: float, delay_max_s: float, mean_extra_max_s: float,
                outage_max_s: float, position_error_max_m: float, channel_period_s: float, outage_probability: float, corner_probability: float,
                max_duration_s: float, cbf_config: str | None, assumptions: str | None, out: Path | None) -> None:

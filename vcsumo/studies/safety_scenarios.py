@@ -48,7 +48,7 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from vcsumo.config import StrictModel
 from vcsumo.control.proxies import sample_params
@@ -90,7 +90,10 @@ class SafetyCampaign(StrictModel):
     outage_max_s: float = Field(default=30.0, ge=1.0, le=600.0, description="Longest outage, s")
     corner_probability: float = Field(default=0.3, ge=0, le=1, description="Probability that a train's true parameters sit at a corner of its uncertainty box, -")
     position_error_max_m: float = Field(default=1.0, ge=0, le=50.0, description="Largest bound e_s of the odometry error (Felez eq. 9), m (offline loop)")
-    control_period_s: float = Field(default=0.4, gt=0, le=2.0, description="Period of the nominal controllers (the ATO cycle; the CBF supervisor runs every step), s")
+    control_period_s: float | None = Field(
+        default=None, gt=0, le=2.0,
+        description="Period of the nominal controllers (an ATO cycle; the CBF supervisor and the guard run every step), s; none: every step, as "
+                    "the stacks of the capacity study and of the SUMO loop (offline loop only)")
     max_duration_s: float = Field(default=900.0, gt=0, le=7200.0, description="Longest simulated time of a scenario, s")
     cbf_config: str | None = Field(default=None, description="CBF parameter file (default controllers/cbf.yaml)")
     assumptions: str | None = Field(default=None, description="Assumption set of the separation model (shipped name or path; default etcs_typical): the stacks' and the measurement's")
@@ -101,6 +104,13 @@ class SafetyCampaign(StrictModel):
         bad = [k for k in v if k not in KINDS]
         if bad:
             raise ValueError(f"unknown scenario kind(s) {bad} (choose from {', '.join(KINDS)})")
+        return v
+
+    @field_validator("control_period_s")
+    @classmethod
+    def _sumo_every_step(cls, v: float | None, info: ValidationInfo) -> float | None:
+        if v is not None and info.data.get("loop") == "sumo" and abs(v - info.data.get("step_s", v)) > 1e-9:
+            raise ValueError(f"{v} s: the SUMO loop runs the nominal controllers every step, as the capacity study (leave it out)")
         return v
 
     @model_validator(mode="after")
