@@ -16,7 +16,9 @@ then the predecessor may be standing at the follower's front.
 model (:class:`vcsumo.signalling.separation.RelativeBraking`, under the stack's named assumption
 set), tested on the state one step ahead and on the *force* the train will be applying then.  The
 predecessor is placed where it is at the least one step from now, having braked as hard as it can
-(top of its box, its resistance, up-grades) since the time stamp of what the follower knows of it.
+(top of its box, its resistance, the up-grades it has met on the way) since the time stamp of what
+the follower knows of it (:meth:`RouteBraking.state_after`: until 2026-12-01 at the deceleration where
+it was, so a climb just ahead of it was left out for the whole age of the message).
 The follower's force one step ahead is the largest its plant can apply after the command (a rising
 force at most the command, a falling one no lower than the force lag and jerk limit allow from the
 force it applies now, ``Observation.ego.force_n``: :meth:`BrakeBuildUp.next_force`); from that force its guaranteed brake needs the build-up
@@ -74,7 +76,7 @@ from vcsumo.dynamics import acceleration, gradient_force, running_resistance
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.route_profile import RouteProfile
 from vcsumo.signalling.assumptions import load_assumptions
-from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel, leader_worst_state
+from vcsumo.signalling.separation import RelativeBraking, RouteBraking, SeparationModel
 from vcsumo.units import G
 
 
@@ -187,8 +189,7 @@ class NextStepSeparation:
         if pred.source == "none":  # nothing known: the predecessor may stand at the follower's front
             self.s_l, self.v_l, self.room = s, 0.0, -math.inf
         else:  # where the predecessor is at the least one step from now, having braked as hard as it can since its time stamp
-            a_l = self.rule.leader.decel_at(pred.front_m, pred.speed_mps)
-            moved, self.v_l = leader_worst_state(pred.speed_mps, a_l, pred.age_s + self.dt)
+            moved, self.v_l = self.rule.leader.state_after(pred.front_m, pred.speed_mps, pred.age_s + self.dt)  # on the gradients it met
             self.s_l = pred.front_m + moved
             gap = self.s_l - guard.predecessor.length_m - self.s1 - max(0.0, guard.d_min_m - guard.model.margin_m) - 2.0 * guard.position_error_m
             self.room = gap - guard.model.margin_m

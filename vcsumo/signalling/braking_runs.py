@@ -58,6 +58,12 @@ def _run_at(run: list[tuple[float, float, float, float]], t: float) -> tuple[flo
     return x0 + v0 * dt - 0.5 * a * dt * dt, v0 - a * dt, a
 
 
+def run_state(run: list[tuple[float, float, float]], t: float) -> tuple[float, float]:
+    """(distance run, speed) of a braking run (:func:`braking_run`) at time t ≥ 0, (m, m/s)."""
+    x, v, _ = _run_at(run, t)
+    return x, v
+
+
 def max_closing(follower_run: list[tuple[float, float, float, float]], leader_run: list[tuple[float, float, float, float]]) -> float:
     """The largest closing max_t [x_f(t) − x_l(t)] (≥ 0) of two braking runs
     (:meth:`RouteBraking.braking_run`), m: exact — between consecutive break points of either run
@@ -86,4 +92,4 @@ def max_closing(follower_run: list[tuple[float, float, float, float]], leader_ru
     return best
 
 
-__all__ = ["braking_run", "max_closing"]
+__all__ = ["braking_run", "max_closing", "run_state"]

@@ -51,7 +51,7 @@ from vcsumo.errors import InfeasibleBraking
 from vcsumo.rolling_stock import RollingStock
 from vcsumo.running_time import curve_speed as authority_speed  # the braking curve: v·T + (v² − v_t²)/(2a) ≤ distance
 from vcsumo.signalling.assumptions import AssumptionSet
-from vcsumo.signalling.braking_runs import braking_run, max_closing
+from vcsumo.signalling.braking_runs import braking_run, max_closing, run_state
 from vcsumo.signalling.train_braking import (  # noqa: F401 (brake_range, guaranteed_decel, strongest_decel: also from here)
     brake_range, guaranteed_decel, guaranteed_decel_of_floats, strongest_decel, strongest_decel_of_floats)
 from vcsumo.units import G
@@ -377,6 +377,14 @@ class RouteBraking:
         """The braking run from the front at s (:func:`vcsumo.signalling.braking_runs.braking_run`):
         the dead time at constant speed, then this train's deceleration along the route."""
         return braking_run(self._x, self._g, self.rho, self.brake_part(v_mps), s_m, v_mps, dead_time_s, self.stock.name)
+
+    def state_after(self, s_m: float, v_mps: float, t_s: float) -> tuple[float, float]:
+        """(distance covered, speed) t after the train at s and v started braking (no dead time), on
+        the route's gradients, (m, m/s): with ``strongest`` the least a train ahead can have advanced
+        since a message of that state t old (:func:`leader_worst_state` on level track)."""
+        if t_s <= 0.0 or v_mps <= 0.0:
+            return 0.0, max(v_mps, 0.0)
+        return run_state(self.braking_run(s_m, v_mps, 0.0), t_s)
 
     def stopping_bound(self, v_mps: float, dead_time_s: float) -> float:
         """An upper bound of :meth:`stopping_distance` from anywhere on the route (s ≥ 0), m: v·T + v²/(2·a)
