@@ -211,6 +211,11 @@ class SeparationModel:
         return absolute_braking_gap(v_mps, a_f, self.dead_time_s) + self.assumptions.position_error_m
 
 
+TUNNEL_FACTOR_FLOOR = 1.5
+"""The tunnel factor the strongest braking of a train ahead counts at least (:func:`strongest_decel`'s
+default: a route's own tunnels count where they are larger, :class:`RouteBraking`)."""
+
+
 def _interp(x: float, xp: list[float], fp: list[float], j: int) -> float:
     """``np.interp`` at one point inside [xp[0], xp[-1]] with xp[j] ≤ x < xp[j + 1] given (the same
     operations, so the same number)."""
@@ -263,6 +268,9 @@ class RouteBraking:
         if box is not None:
             self.params_high = self.params_high.with_(davis_a_n=box.davis_a_n.high, davis_b_n_per_mps=box.davis_b_n_per_mps.high, davis_c_n_per_mps2=box.davis_c_n_per_mps2.high)
         self.rho = 1.0 if strongest else stock.rotating_mass_factor
+        # the strongest counts the quadratic resistance at the route's largest tunnel factor, at least
+        # 1.5 (until 2026-12-01 always 1.5: a leader braking in a tunnel of factor 4.0 beat it)
+        self.tunnel_max = max(TUNNEL_FACTOR_FLOOR, float(np.max(profile.tunnel_factors))) if len(profile.tunnel_factors) else TUNNEL_FACTOR_FLOOR
         # pieces: the route's edges, cut also where the rear passes a gradient change (front there + the
         # train's length), so the gradient under the body is the same all along each piece (an edge
         # as long as a long block would otherwise carry a descent its rear left a kilometre before)
@@ -296,9 +304,10 @@ class RouteBraking:
 
     def brake_part(self, v_mps: float) -> float:
         """Guaranteed (strongest: hardest) deceleration without the gradient at speed v, m/s²; the
-        strongest counts the whole running resistance at v (it only falls as the train slows)."""
+        strongest counts the whole running resistance at v (it only falls as the train slows), in
+        the route's largest tunnel (at least :data:`TUNNEL_FACTOR_FLOOR`)."""
         if self.strongest:
-            return self.brake_low + float(running_resistance(self.params_high, v_mps, 1.5)) / self.m_low
+            return self.brake_low + float(running_resistance(self.params_high, v_mps, self.tunnel_max)) / self.m_low
         b = self.brake_low
         if self.power_low is not None:
             b = min(b, self.power_low / (self.m_high * max(v_mps, 0.1)))
