@@ -24,4 +24,28 @@ def test_headway_plot_names_the_stations_on_its_distance_axis(tmp_path):
     names = {t.get_text() for a in top for t in a.get_xticklabels()}
     assert {"Castleford", "Dunmore"} <= names, names
     assert ax.get_title() == "regional_graded — up: Alder -> Glenrock"
-    assert {t.get_text() for t in ax.get_legend().get_texts()} == {f"{r} regional_emu160 {k}" for r in ("FBS", "MB") for k in ("simulated", "analytic")}
+    assert {t.get_text() for t in fig.legends[0].get_texts()} == {f"{r} regional_emu160 {k}" for r in ("FBS", "MB") for k in ("simulated", "analytic")}
+
+
+def test_the_legend_hides_no_data(tmp_path):
+    """Found by unseen-studies (2026-12-01): two trains on a line of our own (``mixed``: heavy1500 and
+    light_fast, FBS and MB, three points per direction; the figures below are its headway.csv) — the
+    down panel's legend, placed inside the axes, lay over the FBS heavy1500 line between km 12 and 25.
+    Now one legend below the panels, outside every axes."""
+    rows = []
+    for d, fbs_h, fbs_l, mb_h, mb_l in (("up", (156.5, 180.0, 180.0), (77.5, 83.5, 83.5), (68.1, 91.5, 91.5), (43.5, 49.0, 49.0)),
+                                        ("down", (169.5, 156.5, 156.5), (82.5, 77.5, 77.5), (81.0, 68.5, 68.1), (47.0, 43.5, 43.5))):
+        for regime, train, hs in (("fbs", "heavy1500", fbs_h), ("fbs", "light_fast", fbs_l), ("mb", "heavy1500", mb_h), ("mb", "light_fast", mb_l)):
+            rows += [{"line": "mixed", "direction": d, "regime": regime, "train": train, "measuring_point_km": k, "headway_sim_s": h,
+                      "headway_analytic_s": h + 0.5} for k, h in zip((12.0, 25.0, 40.0), hs)]
+    fig = plot_headway(pd.DataFrame(rows), tmp_path / "h.png")
+    assert len(fig.legends) == 1 and len(fig.legends[0].get_texts()) == 8
+    assert all(ax.get_legend() is None for ax in fig.axes)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)  # (the figure comes back closed: draw it again, as saved)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    box = fig.legends[0].get_window_extent(renderer)
+    for ax in fig.axes:
+        assert not box.overlaps(ax.get_window_extent(renderer)), "the legend lies over a panel"

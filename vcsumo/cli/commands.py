@@ -199,14 +199,15 @@ def headway(cfg: HeadwayConfig) -> None:
     out = cfg.out_path or default_out("headway", line.name)
     with ResultsFolder(out, inputs={"line": line.path, **cfg.recorded_inputs()},
                        params={"regimes": regimes, "trains": names, "block_length_m": cfg.block_length_m, "step_length_s": cfg.step_length_s,
-                               "points_km": cfg.points_km, "trains_per_run": cfg.trains_per_run, "assumptions": inp.assumptions.record()}) as rf:
+                               "points_km": cfg.points_km, "trains_per_run": cfg.trains_per_run, "directions": list(cfg.directions),
+                               "assumptions": inp.assumptions.record()}) as rf:
         with progress_bar() as prog:
             def factory(desc: str):
                 task = prog.add_task(desc, total=1.0)
                 return lambda d, t: prog.update(task, completed=d / t if t else 1.0)
 
             df = run_headway_study(line, net, inp.trains, regimes, rf.path, cfg.points_km, step_s=cfg.step_length_s, n_trains=cfg.trains_per_run,
-                                   progress_factory=factory, assumptions=inp.assumptions)
+                                   directions=tuple(cfg.directions), progress_factory=factory, assumptions=inp.assumptions)
     print_table(df, f"headway — {line.name}", ["direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s", "deviation_pct",
                 "speed_at_point_mps", "healthy"], csv_path=out / "headway.csv")
     out_console.print(f"wrote {out / 'headway.csv'}")

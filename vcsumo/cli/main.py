@@ -81,16 +81,19 @@ def lines_cmd() -> None:
     if not shipped_rolling_stock():
         raise VcsumoError(f"{rolling_stock_dir()}: no train type files (<name>.yaml) found")
     log.info("lines and train types from %s", project_root())
+    listing = []  # every file is read before anything is printed: a bad one is its error alone, not a list cut off before it
     for name in names:
         ln = load_line(name)
-        out_console.print(f"[bold]{name}[/]: {ln.data.title} ({ln.data.km_start}–{ln.data.km_end} km, {ln.data.tracks} track, "
-                          f"{_count(len(ln.data.stations), 'station')}, {_count(len(ln.data.branches), 'branch', 'branches')})")
+        listing.append(f"[bold]{name}[/]: {ln.data.title} ({ln.data.km_start}–{ln.data.km_end} km, {ln.data.tracks} track, "
+                       f"{_count(len(ln.data.stations), 'station')}, {_count(len(ln.data.branches), 'branch', 'branches')})")
     for name in shipped_networks():
         net = load_network(name)
-        out_console.print(f"[bold]{name}[/] (network): {net.title} (lines {', '.join(net.lines)}; {_count(len(net.all_station_ids()), 'station')})")
+        listing.append(f"[bold]{name}[/] (network): {net.title} (lines {', '.join(net.lines)}; {_count(len(net.all_station_ids()), 'station')})")
     for name in shipped_rolling_stock():
         st = load_rolling_stock(name)
-        out_console.print(f"  train [bold]{name}[/]: {st.title}")
+        listing.append(f"  train [bold]{name}[/]: {st.title}")
+    for text in listing:
+        out_console.print(text)
 
 
 def _count(n: int, one: str, many: str | None = None) -> str:

@@ -22,7 +22,9 @@ def plot_headway(df: pd.DataFrame, path: Path, infrastructure: pd.DataFrame | Pa
     """Simulated vs analytic headway per measuring point, one panel per direction: the line's km on
     the x axis with the station names above it (``infrastructure.csv``), FBS / MB in capitals, a
     measuring point without a sustainable headway left out of its line.  ``titles``: direction ->
-    its label (the line file's ``directions``).  Returns the figure (closed)."""
+    its label (the line file's ``directions``).  One legend for all panels, below them, outside every
+    axes (until unseen-studies each panel had its own inside it, where matplotlib found room: on a line
+    of our own with two trains it lay over the FBS line of the down panel).  Returns the figure (closed)."""
     if df.empty:
         return None
     infra = read_table(infrastructure)
@@ -40,8 +42,12 @@ def plot_headway(df: pd.DataFrame, path: Path, infrastructure: pd.DataFrame | Pa
         ax.set_ylabel("minimum headway [s]")
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
         distance_axis(ax, infra, (d,), axis="x", signals=False)
+    entries: dict[str, object] = {}  # every (regime, train, kind) once, in drawing order, over all panels
+    for ax in axes[0]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(lab, h)
+    fig.legend(list(entries.values()), list(entries), loc="outside lower center", ncol=min(len(entries), 4), fontsize=7, frameon=False)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return fig

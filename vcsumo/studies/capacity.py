@@ -36,7 +36,8 @@ For each direction, stopping pattern, regime and (VC) controller and convoy size
   it, and the simulated headway is then longer than the analytic one, which assumes a formed
   convoy;
 * ``capacity_trains_per_h`` = 3600·n / headway (every train of a convoy counts);
-  ``gain_vs_fbs`` = capacity / FBS capacity in the same direction and stopping pattern (1.0 = same).
+  ``gain_vs_fbs`` = capacity / FBS capacity in the same direction and stopping pattern (1.0 = same),
+  only when both rows are healthy (:mod:`vcsumo.studies.capacity_gain`).
 
 VC with convoy size 1 has nothing to couple: it is moving block, and its rows repeat the MB result.
 
@@ -73,6 +74,7 @@ from vcsumo.sim.convoy_formation import within_spacing
 from vcsumo.sim.loop import MeasuringPoint, Scenario, simulate
 from vcsumo.studies.capacity_route import (STANDSTILL_EXTRA_M, Case, RouteSetup, analytic_headway, check_position_m, convoy_spacing, initial_convoy_gaps, leader_run, route_setup,
                                            convoys_longer_than_platforms, unit_trains)
+from vcsumo.studies.capacity_gain import gains_vs_fbs
 from vcsumo.studies.min_headway import Probe, search_min_headway
 from vcsumo.studies.time_distance import TIME_DISTANCE_COLUMNS, TIME_DISTANCE_FILE, time_distance_table
 from vcsumo.timetable import PlannedTrain
@@ -462,10 +464,7 @@ def run_capacity_study(
             rows.append(results[case])
         df = pd.DataFrame(rows, columns=CAPACITY_COLUMNS)
         df["controller"] = df["controller"].fillna("")
-        for (d, pat), g in df.groupby(["direction", "stopping_pattern"]):
-            fbs = g[g.regime == "fbs"].capacity_trains_per_h.dropna()
-            if len(fbs):
-                df.loc[g.index, "gain_vs_fbs"] = (g.capacity_trains_per_h / float(fbs.iloc[0])).round(3)
+        df["gain_vs_fbs"] = gains_vs_fbs(df)  # only between rows shown safe
         atomic_csv(df, out / "capacity.csv")
         from vcsumo.infrastructure import write_infrastructure
         from vcsumo.plots.capacity import plot_capacity, plot_time_distance_stairs

@@ -176,6 +176,7 @@ class HeadwayConfig(CommandConfig):
     block_length_m: BlockLength = None
     step_length_s: Step = Field(default=0.5, description="SUMO step, s (0–2 s)", json_schema_extra={"option": "--step-length", "unit": "s"})
     trains_per_run: int = Field(default=2, ge=2, le=20, description="Trains released per probe (2–20; 2 = blocking-time pair)", json_schema_extra={"unit": "trains"})
+    directions: list[Literal["up", "down"]] = Field(default_factory=lambda: ["up", "down"], min_length=1, description="Directions to study")
     assumptions: Assumptions = None
     out: Out = None
 

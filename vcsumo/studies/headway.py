@@ -63,8 +63,15 @@ HEADWAY_COLUMNS = [
     "line", "direction", "regime", "train", "measuring_point_km", "headway_sim_s", "headway_analytic_s",
     "deviation_pct", "release_interval_s", "speed_at_point_mps", "critical_km", "block_length_m", "release_km", "release_speed_mps",
     "hindrance_delay_s", "min_gap_m", "gap_violations", "collisions", "emergency_brakes", "simulations", "healthy", "min_margin_m", "assumptions",
+    "below_separation_time_s", "max_impact_kmh", "stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings", "authority_overruns",
+    "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings", "teleports", "trains_arrived", "trains", "unhealthy_probes",
     "error",
 ]
+HEALTH_COLUMNS = ("below_separation_time_s", "max_impact_kmh", "stops_skipped", "short_dwells", "overspeed_events", "beyond_service_brakings",
+                  "authority_overruns", "sumo_emergency_stops", "sumo_emergency_brakings", "sumo_stop_warnings", "teleports", "trains_arrived", "trains")
+"""The run summary's counters that its verdict (``healthy``) rests on, carried by every row as the
+capacity study's rows carry them: a row that is not healthy says why (until unseen-studies a row
+read ``healthy`` False with 0 gap violations and 0 collisions, and nothing else to go on)."""
 
 
 @dataclass
@@ -174,6 +181,7 @@ def run_headway_case(
     guesses = {lab: analytic(x)[0] for lab, _, x in pts}
     mps = [MeasuringPoint(lab, "main", k) for lab, k, _ in pts]
     probes_run = [0]
+    unhealthy = [0]
 
     def run_at(h: float) -> Probe:
         trains = [
@@ -184,6 +192,7 @@ def run_headway_case(
         sub = out / "probes" / f"h{h:08.3f}"
         sim = simulate(Scenario(line, net, trains, regime, step_length_s=step_s, measuring_points=mps, record_period_s=3600.0, full_outputs=False, trace_speeds=True,
                                 assumptions=assumptions), sub)
+        unhealthy[0] += int(not sim.summary["healthy"])
         pr = Probe(h, sim.passages, {t.id: t.depart_s for t in trains}, sim.summary)
         order = [t.id for t in trains]
         pr.compute_delays([m.label for m in mps], order)
@@ -211,7 +220,8 @@ def run_headway_case(
             "release_km": rel_km, "release_speed_mps": round(v0, 2), "hindrance_delay_s": round(pr.delays.get(lab, math.nan), 2),
             "min_gap_m": pr.summary["min_gap_m"], "gap_violations": pr.summary["gap_violations"],
             "collisions": pr.summary["collisions"], "emergency_brakes": pr.summary["emergency_brakes"], "simulations": probes_run[0],
-            "healthy": pr.summary["healthy"], "min_margin_m": pr.summary["min_margin_m"], "assumptions": assumptions.name, "error": error,
+            "healthy": pr.summary["healthy"], "min_margin_m": pr.summary["min_margin_m"], "assumptions": assumptions.name,
+            **{c: pr.summary.get(c, math.nan) for c in HEALTH_COLUMNS}, "unhealthy_probes": unhealthy[0], "error": error,
         })
         if progress:
             progress(len(rows), len(pts))
