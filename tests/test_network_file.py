@@ -199,6 +199,8 @@ def test_bad_network_timetable(tmp_path, two, mutation, field, words):
         ("{line: alpha.yaml}", "{line: alpha.yaml, from_km: -1.0}", "lines[0].from_km", "outside line alpha"),
         ("{line: beta.yaml}", "{line: beta.yaml, branches: [spurious]}", "lines[1].branches[0]", "no branch 'spurious'"),
         ("name: twolines", "name: twolines\nstations: []", "stations", "unknown key"),
+        # a turnout faster than the joining line (120 km/h), as a line file refuses for a branch (until 2026-12-01 accepted)
+        ("diverging_speed_kmh: 60}", "diverging_speed_kmh: 400}", "joins[1].diverging_speed_kmh", "400 km/h exceeds the line speed of gamma (120 km/h)"),
     ],
 )
 def test_bad_network_file_names_file_and_field(tmp_path, old, new, field, words):

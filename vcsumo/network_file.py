@@ -304,6 +304,12 @@ def _check_joins(net: Network) -> list[tuple[str, str]]:
                 p.append((f"{f}.towards", f"a junction inside line {jn.meets.line} needs towards: start or end (the way the joining line runs alongside it)"))
             if jn.diverging_speed_kmh is None:
                 p.append((f"{f}.diverging_speed_kmh", "a junction inside a line needs the turnout speed, km/h"))
+            else:  # as a branch's (line files refuse a turnout faster than the branch)
+                own = view.data.line_speed_kmh if not jn.end.at.startswith("branch:") else \
+                    next(b.speed_kmh for b in view.data.branches if b.id == jn.end.at[7:])
+                if jn.diverging_speed_kmh > own + 1e-9:
+                    p.append((f"{f}.diverging_speed_kmh", f"turnout speed {jn.diverging_speed_kmh:g} km/h exceeds the line speed of "
+                              f"{jn.end.line}{'' if not jn.end.at.startswith('branch:') else ' ' + jn.end.at} ({own:g} km/h)"))
             md = net.lines[jn.meets.line].data
             for st in md.stations:
                 if abs(st.km - km) * 1000 < st.platform_length_m / 2 + 10:
