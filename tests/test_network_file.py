@@ -199,6 +199,8 @@ def test_bad_network_timetable(tmp_path, two, mutation, field, words):
         ("{line: alpha.yaml}", "{line: alpha.yaml, from_km: -1.0}", "lines[0].from_km", "outside line alpha"),
         ("{line: beta.yaml}", "{line: beta.yaml, branches: [spurious]}", "lines[1].branches[0]", "no branch 'spurious'"),
         ("name: twolines", "name: twolines\nstations: []", "stations", "unknown key"),
+        # a turnout faster than the joining line (120 km/h), as a line file refuses for a branch (until 2026-12-01 accepted)
+        ("diverging_speed_kmh: 60}", "diverging_speed_kmh: 400}", "joins[1].diverging_speed_kmh", "400 km/h exceeds the line speed of gamma (120 km/h)"),
     ],
 )
 def test_bad_network_file_names_file_and_field(tmp_path, old, new, field, words):
@@ -315,3 +317,18 @@ def test_study_files_name_a_network_only_for_batch(tmp_path):
     with pytest.raises(InputError) as exc:
         load_study(headway)
     assert "network of lines" in str(exc.value)
+
+
+def test_every_problem_of_a_network_file_is_one_line(tmp_path, capsys, monkeypatch):
+    """Two joins at a km outside their line: each problem is one line naming the file and the field,
+    as a line file's are (until 2026-12-01 the first and '(and 1 more problem)', the second never shown)."""
+    from vcsumo.cli.main import main
+
+    monkeypatch.setenv("VCSUMO_CACHE", str(tmp_path / "cache"))
+    path = make_network(tmp_path / "net", net=NET.replace("km: 100.0}", "km: 99.0}").replace("km: 5.0}, towards: start", "km: 11.0}, towards: start"))
+    assert main(["build-network", "--line", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2, err
+    assert err[0].startswith(f"error: {path}: joins[0].meets.km: 99.0 km lies outside line beta"), err
+    assert err[1].startswith(f"error: {path}: joins[1].meets.km: 11.0 km lies outside line alpha"), err
+    assert not (tmp_path / "cache").exists() or not list((tmp_path / "cache").rglob("*.net.xml"))

@@ -179,12 +179,17 @@ def apply_delays(trains: list[PlannedTrain], delays: dict[str, TrainDelays]) -> 
     Scheduled times (stop arrival/departure, final arrival) are unchanged: they are what the
     delays are measured against.  A dwell extension is a longer *minimum* dwell, so slack in the
     schedule (a train early at a stop with a scheduled departure) absorbs it, as in operation.
+
+    Every train is a copy, its stops too, delayed or not: the run (the VC driver moves convoy
+    departures in place) must not move the timetable the delays are measured against (until
+    2026-12-01 a train without a delay was the timetable's own object: a follower made to wait for
+    its late leader was measured against its moved departure, its knock-on delay hidden).
     """
     out = []
     for t in trains:
         d = delays.get(t.id)
         if d is None or d.total_s == 0.0:
-            out.append(t)
+            out.append(replace(t, stops=[replace(s) for s in t.stops]))
             continue
         stops = [replace(s, dwell_s=s.dwell_s + ext) for s, ext in zip(t.stops, d.dwell_s)]
         out.append(replace(t, depart_s=t.depart_s + d.origin_s, stops=stops))

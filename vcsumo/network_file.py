@@ -25,7 +25,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from vcsumo.config import StrictModel, is_dir, is_file, load_model, read_yaml
+from vcsumo.config import MAX_PROBLEMS_SHOWN, InputProblems, StrictModel, is_dir, is_file, load_model, read_yaml
 from vcsumo.errors import InputError
 from vcsumo.line import Km, Line, LineFile, Signalling, Station, check_line, load_line, project_root
 
@@ -304,6 +304,12 @@ def _check_joins(net: Network) -> list[tuple[str, str]]:
                 p.append((f"{f}.towards", f"a junction inside line {jn.meets.line} needs towards: start or end (the way the joining line runs alongside it)"))
             if jn.diverging_speed_kmh is None:
                 p.append((f"{f}.diverging_speed_kmh", "a junction inside a line needs the turnout speed, km/h"))
+            else:  # as a branch's (line files refuse a turnout faster than the branch)
+                own = view.data.line_speed_kmh if not jn.end.at.startswith("branch:") else \
+                    next(b.speed_kmh for b in view.data.branches if b.id == jn.end.at[7:])
+                if jn.diverging_speed_kmh > own + 1e-9:
+                    p.append((f"{f}.diverging_speed_kmh", f"turnout speed {jn.diverging_speed_kmh:g} km/h exceeds the line speed of "
+                              f"{jn.end.line}{'' if not jn.end.at.startswith('branch:') else ' ' + jn.end.at} ({own:g} km/h)"))
             md = net.lines[jn.meets.line].data
             for st in md.stations:
                 if abs(st.km - km) * 1000 < st.platform_length_m / 2 + 10:
@@ -318,12 +324,14 @@ def _check_joins(net: Network) -> list[tuple[str, str]]:
         elif jn.towards is not None or jn.diverging_speed_kmh is not None:
             p.append((f"{f}.towards" if jn.towards is not None else f"{f}.diverging_speed_kmh",
                       f"{km} km is the {met_end} of line {jn.meets.line}: the lines continue into each other (no junction, no turnout)"))
+        rejoined = False
         for end in ends:
             if end in used_ends:
                 p.append((f, f"the {end[1]} of line {end[0]} is already joined (joins[{used_ends[end]}])"))
+                rejoined = True
             used_ends.setdefault(end, j)
         a, b = root(jn.end.line), root(jn.meets.line)
-        if a == b:
+        if a == b and not rejoined:  # (an end joined again closes a loop too: said once)
             p.append((f, f"joins form a loop: {jn.end.line} and {jn.meets.line} are already joined"))
         parent[a] = b
     if not p:
@@ -395,10 +403,9 @@ def load_network(spec: str | Path) -> Network:
     problems = _check_parts(nf, lines)
     if not problems:
         problems = _check_joins(Network(nf, path, lines))
-    if problems:
-        field, msg = problems[0]
-        more = f" (and {len(problems) - 1} more problem{'s' if len(problems) > 2 else ''})" if len(problems) > 1 else ""
-        raise InputError(path, field, msg + more)
+    if problems:  # one line each, as a line file's (until 2026-12-01 the first and "(and N more problems)", never shown)
+        errors = [InputError(path, field, msg) for field, msg in problems[:MAX_PROBLEMS_SHOWN]]
+        raise errors[0] if len(errors) == 1 else InputProblems(errors)
     return Network(nf, path, lines)
 
 

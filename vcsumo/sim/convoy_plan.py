@@ -87,7 +87,8 @@ def late_entry(ego: PlannedTrain, ahead: PlannedTrain) -> str:
 
 def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_m: dict[str, float], model: SeparationModel | None = None,
                               window_s: float = 300.0) -> None:
-    """Members leaving the leader's platform within ``window_s`` depart with it, standing behind it.
+    """Members leaving the leader's platform within ``window_s`` depart with it, standing behind it,
+    and so does every member timetabled *before* the train ahead of it there, however long before.
 
     The follower's front is placed ``standstill_gap_m`` behind the rear of the train ahead on the
     same departure edge.  If the convoy does not stand in that edge, the follower departs from its
@@ -96,14 +97,23 @@ def arrange_convoy_departures(convoys: list[list[PlannedTrain]], standstill_gap_
     A follower that leaves later than its timetable says this way (timetabled before the train ahead
     of it, or after it where the two do not stand on the departure track together) is warned of,
     naming both times and the reason.
+
+    A follower timetabled before the train ahead cannot leave in front of it (nothing overtakes,
+    :mod:`~vcsumo.sim.convoy_insertion` keeps it out until that train has passed), and it must not
+    keep its earlier departure time either: SUMO tries one train per edge and step, in departure
+    order, so the held follower kept it from ever trying the train ahead — neither departed (found
+    2026-12-01: a batch's primary delay put a leader 7 min 44 s behind its follower; an open end let a
+    75 m follower timetabled 90 s before its 202 m leader keep its time).
     """
     for members in convoys:
         for k in range(1, len(members)):
             ego, ahead = members[k], members[k - 1]
-            if ego.edges[0] != ahead.edges[0] or abs(ego.depart_s - ahead.depart_s) > window_s or ahead.depart_speed_mps > 0:
+            if ego.edges[0] != ahead.edges[0] or ego.depart_s - ahead.depart_s > window_s or ahead.depart_speed_mps > 0:
                 continue
             timetabled = ego.depart_s
             _depart_with(ego, ahead, standstill_gap_m.get(ego.id, 10.0), model)
+            if ego.depart_s <= ahead.depart_s and timetabled < ahead.depart_s and not ego.depart_pos_m < ahead.depart_pos_m - ahead.stock.length_m:
+                ego.depart_s = ahead.depart_s + 1.0  # (no model to plan its start with) after the train ahead, in SUMO's order too
             if ego.depart_s > timetabled + 0.5:
                 late = f"({ego.depart_s - timetabled:.0f} s after its timetable; summary.csv's scheduled departure is that time)"
                 if timetabled < ahead.depart_s:
@@ -123,11 +133,14 @@ def _depart_with(ego: PlannedTrain, ahead: PlannedTrain, gap: float, model: Sepa
         ego.depart_pos_m = pos
         ego.start_s_m = pos
         return
-    if model is None or abs(ego.depart_pos_m - ahead.depart_pos_m) > 1.0:
+    if model is None:
         return
-    run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=ahead.start_s_m + ahead.stock.length_m + gap + 1.0,
+    # the rear of the train ahead must pass the follower's front by the standstill gap, as the convoy
+    # insertion holds it (both fronts on the same first edge: an open end puts each its own length in)
+    clear_s = ego.depart_pos_m + gap + ahead.stock.length_m
+    run = unhindered_run(ahead.stock.params(), ahead.profile, dt=0.5, s0=ahead.start_s_m, end_s=clear_s + 1.0,
                          stop_at_end=False, curve=RouteBraking(model, ahead.stock, ahead.profile).curve(0.75))
-    clear = float(time_at(run, ahead.start_s_m + ahead.stock.length_m + gap)[0])
+    clear = float(time_at(run, clear_s)[0])
     ego.depart_s = max(ego.depart_s, ahead.depart_s + math.ceil(clear))
 
 

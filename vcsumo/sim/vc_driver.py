@@ -321,15 +321,15 @@ class VCDriver:
                 v = st.speed_mps
                 s_pred = pst.s_m + fr.offset_m
                 s_pred_rear = s_pred - f.pred.stock.length_m
-                # SUMO stops the follower at its platform end, or behind a predecessor standing in the platform (margin and errors behind its rear)
-                s_stop = f.stops_m[f.next_stop]
-                in_platform = s_stop - f.platforms_m[f.next_stop] - 1.0 <= s_pred <= s_stop + 1.0
+                # SUMO stops the follower at its platform end, or behind a predecessor stopping or standing in the platform (margin and errors
+                # behind its rear; not one running through: tests/test_unseen13_convoy_stop_run_through.py)
+                s_stop, stand = f.stops_m[f.next_stop], f.pred_stands_m[f.next_stop]
+                in_platform = s_stop - f.platforms_m[f.next_stop] - 1.0 <= s_pred <= s_stop + 1.0 and (stand is not None or pst.speed_mps < 0.1)
                 target = min(s_stop, s_pred_rear - self.model.margin_m) if in_platform else s_stop
                 to_stop = target - st.s_m
                 stopping = f.braking.stopping_distance(st.s_m, v, 1.5 * self.step_s)
                 if to_stop <= stopping + 150.0:
                     stop_target = target
-                    stand = f.pred_stands_m[f.next_stop]
                     if stand is not None and s_pred <= stand + 1.0 and pst.speed_mps > 0.1:
                         # the controller plans towards where a predecessor still braking into this platform will
                         # stand (its rear now would pull the target back step by step as it brakes in); the
