@@ -34,3 +34,16 @@ def test_a_usage_error_is_one_line_and_exit_2(case, tmp_path, monkeypatch, capsy
     assert code == 2 and len(lines) == 1, lines
     assert lines[0].startswith(start) and lines[0].endswith(end), lines[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unknown_study_name_lists_the_shipped_studies(tmp_path, monkeypatch, capsys):
+    """``vcsumo study run nosuch`` (a name, as README's ``vcsumo study run capacity_hcmc_line1``): one
+    line naming the shipped studies — until 2026-12-01 ``error: nosuch: file not found``."""
+    monkeypatch.chdir(tmp_path)
+    code = main(["study", "run", "nosuch"])
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert code == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("error: STUDY_FILE: unknown study 'nosuch' (shipped: ") and "capacity_hcmc_line1" in lines[0]
+    assert main(["study", "run", "nosuch.yaml"]) == 2  # a path stays a path
+    assert capsys.readouterr().err.strip() == "error: nosuch.yaml: file not found"
+    assert list(tmp_path.iterdir()) == []
