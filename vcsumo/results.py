@@ -114,6 +114,18 @@ def check_output_folder(folder: Path, option: str = "--out") -> None:
     if ":" in full[len(drive):]:
         raise InputError(None, option, f"{folder}: a ':' in the results folder's path is read by SUMO as host:port of a socket; "
                                        f"choose a folder whose path has no ':'")
+    # The folder, or the nearest of its parents that exists, must be a folder this process can write
+    # into: before, a file in the way or a read-only place was an OSError after the work ("error:
+    # out.partial-123: Read-only file system", "error: x: File exists" for a file x in x/sub) naming
+    # neither the option nor what was wrong.
+    here = Path(full)
+    while not here.exists() and not here.is_symlink() and here != here.parent:
+        here = here.parent
+    if here.exists() and not here.is_dir():
+        where = "" if here == Path(full) else f"{folder}: "
+        raise InputError(None, option, f"{where}{here if where else folder} is a file, not a folder")
+    if here.is_dir() and not os.access(here, os.W_OK | os.X_OK):
+        raise InputError(None, option, f"{folder}: cannot write into {here} (no permission, or a read-only file system)")
 
 
 def remove_stale_partials(folder: Path, name: str | None = None, pids: set[int] | None = None) -> list[Path]:
@@ -280,7 +292,7 @@ class ResultsFolder:
     def __enter__(self) -> "ResultsFolder":
         check_output_folder(self.final)
         if self.final.exists() and any(self.final.iterdir()) and not self.overwrite:
-            raise VcsumoError(f"{self.final}: output folder exists and is not empty (choose another --out or remove it)")
+            raise InputError(None, "--out", f"{self.final}: output folder exists and is not empty (choose another --out or remove it)")
         self._made = []
         p = self.final.parent
         while not p.exists():

@@ -451,7 +451,11 @@ def routes_xml(trains: list[PlannedTrain], topo: Topology, min_gap_m: float = 5.
             extra = ""
             if s.arrival_s is not None:
                 extra += f' arrival="{s.arrival_s:.1f}"'
-            if s.departure_s is not None:
+            if s.departure_s is not None and s.departure_s >= t.depart_s:
+                # A train that departs after a stop's scheduled departure (a primary delay at the
+                # origin, vcsumo batch) has no 'until' to wait for: SUMO ends the stop after its
+                # duration either way, but warned "stop ... set to end at ... earlier than departure"
+                # — a stop warning that made a healthy delayed run "not healthy".
                 extra += f' until="{s.departure_s:.1f}"'
             out.append(f"    {_stop_element(topo, s.platform, t.shares_platforms)} duration=\"{s.dwell_s:.1f}\"{extra}/>")
         if t.final_stop is not None:

@@ -250,6 +250,18 @@ _add_examples(cli)
 _add_verbosity_options(cli)
 
 
+def usage_problem(exc: click.exceptions.UsageError) -> str:
+    """click's usage error as one line, ``--option: problem (see 'vcsumo cmd --help')``: before, click's
+    three lines (``Usage: ...``, ``Try ... --help``, ``Error: No such option '--bogus'.``)."""
+    if isinstance(exc, click.BadParameter) and not isinstance(exc, click.MissingParameter) and exc.param is not None:
+        name = exc.param.opts[0] if isinstance(exc.param, click.Option) and exc.param.opts else exc.param.human_readable_name
+        text = f"{name}: {exc.message}"
+    else:
+        text = exc.format_message()
+    text = " ".join(text.split()).rstrip(".")
+    return text + (f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else "")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vcsumo`` console script."""
     setup_logging(0, console)
@@ -269,6 +281,9 @@ def main(argv: list[str] | None = None) -> int:
             return 128 + exc.__cause__.signum
         console.print("interrupted" if isinstance(exc.__cause__, KeyboardInterrupt) else "aborted")
         return 130
+    except click.exceptions.UsageError as exc:  # an unknown option or command, a value click itself rejects: one line, as every input error
+        console.print(f"error: {usage_problem(exc)}", highlight=False, markup=False, soft_wrap=True)
+        return 2
     except click.exceptions.ClickException as exc:
         exc.show()
         return exc.exit_code

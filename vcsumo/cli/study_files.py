@@ -209,8 +209,12 @@ def shipped_or_path(spec: Path) -> Path:
     from vcsumo.line import project_root
 
     shipped = project_root() / "studies" / f"{spec}.yaml"
-    if not spec.exists() and spec.suffix not in (".yaml", ".yml") and shipped.is_file():
-        return shipped
+    if not spec.exists() and spec.suffix not in (".yaml", ".yml"):
+        if shipped.is_file():
+            return shipped
+        # a name that is neither (before: "error: nosuch: file not found", not saying names are looked up or which exist)
+        names = sorted(p.stem for p in (project_root() / "studies").glob("*.yaml"))
+        raise InputError(None, "STUDY_FILE", f"unknown study '{spec}' (shipped: {', '.join(names) or 'none'}; or a path to a .yaml file)")
     return spec
 
 

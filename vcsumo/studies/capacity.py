@@ -465,19 +465,25 @@ def run_capacity_study(
         df = pd.DataFrame(rows, columns=CAPACITY_COLUMNS)
         df["controller"] = df["controller"].fillna("")
         df["gain_vs_fbs"] = gains_vs_fbs(df)  # only between rows shown safe
-        atomic_csv(df, out / "capacity.csv")
+        # capacity.csv goes first and comes back last: a folder without it is a stopped study (before, a
+        # SIGTERM while the plots were drawn left it beside no meta.json: a stopped study that looked finished)
+        (out / "capacity.csv").unlink(missing_ok=True)
         from vcsumo.infrastructure import write_infrastructure
         from vcsumo.plots.capacity import plot_capacity, plot_time_distance_stairs
 
         infra = write_infrastructure(net.topology, out)
         td = out / TIME_DISTANCE_FILE
         atomic_csv(_time_distance(out, example_of, results, setups), td)
-        _atomic_plot(lambda p: plot_capacity(out / "capacity.csv", p), out / "capacity.png")
+        table = out / f".tmp-{os.getpid()}-capacity.csv"
+        atomic_csv(df, table)
+        _atomic_plot(lambda p: plot_capacity(table, p), out / "capacity.png")
+        table.unlink()
         _atomic_plot(lambda p: plot_time_distance_stairs(td, p, line.name, infrastructure=infra), out / "time_distance.png")
         failed = int((df.error.astype(str) != "").sum())
         write_meta(out, {"line": line.path}, seed, {**params, "controllers": controllers, "convoy_sizes": convoy_sizes,
                    "directions": list(directions), "patterns": list(patterns), "workers": runner.where},
                    time.perf_counter() - t_wall, {"cases": len(df), "new_cases": res.new, "resumed_cases": res.resumed, "failed_cases": failed})
+        atomic_csv(df, out / "capacity.csv")
     df.attrs.update(new_cases=res.new, resumed_cases=res.resumed, failed_cases=failed)
     return df
 

@@ -102,7 +102,10 @@ def build_profile(track: TrackSpec, base_dir: Path | None = None, path=None) -> 
     try:
         line = load_line(_rel(ln.line, base_dir))
     except InputError as exc:
-        raise InputError(path, "track.line.line", str(exc)) from None
+        # a name looked up ("unknown line") is about this field: its message without the '--line: ' an
+        # option would carry (before: "track.line.line: --line: unknown line 'x'"); a problem inside
+        # the line file names that file already
+        raise InputError(path, "track.line.line", exc.message if exc.path is None else str(exc)) from None
     topo = build_topology(line)
     try:
         edges = topo.track_for(ln.track, ln.direction).edges
