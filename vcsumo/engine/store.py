@@ -192,8 +192,12 @@ class ResultStore:
                             f"wait until it has finished or choose another {self.option}") from None
         self._lock = lock
         try:
-            (folder / OWNER_NAME).write_text(f"pid {os.getpid()} on {socket.gethostname()} since "
-                                             f"{_dt.datetime.now().isoformat(timespec='seconds')}: {' '.join([Path(sys.argv[0]).name] + sys.argv[1:])[:300]}\n")
+            # written whole, then renamed: a second command never reads it empty ("owner unknown" when it
+            # looked between the file's creation and its write)
+            owner_tmp = folder / f"{OWNER_NAME}.tmp-{os.getpid()}"
+            owner_tmp.write_text(f"pid {os.getpid()} on {socket.gethostname()} since "
+                                 f"{_dt.datetime.now().isoformat(timespec='seconds')}: {' '.join([Path(sys.argv[0]).name] + sys.argv[1:])[:300]}\n")
+            os.replace(owner_tmp, folder / OWNER_NAME)
             self._check_meta()
             for t in (self.main, *self.children):
                 _repair(folder / t.name, t.columns)
