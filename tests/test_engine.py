@@ -53,7 +53,10 @@ def slow_in_folder(arg):
     """Writes a partial results folder and takes its time (a worker to be killed from outside)."""
     x, root, seconds = arg
     with ResultsFolder(Path(root) / f"t{x}", overwrite=True) as rf:
-        (rf.path / "started").write_text(str(os.getpid()))
+        # written whole, then renamed: a reader that sees "started" reads the pid (write_text alone
+        # creates the file empty first, and a reader between the two read '': int('') failed under load)
+        (rf.path / "started.tmp").write_text(str(os.getpid()))
+        os.replace(rf.path / "started.tmp", rf.path / "started")
         time.sleep(seconds)
     return x
 
